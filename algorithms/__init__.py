@@ -1,0 +1,1 @@
+"""Backend-neutral RL algorithms (returns, networks, normalization, gradient statistics) in plain torch."""

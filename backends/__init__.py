@@ -1,0 +1,31 @@
+"""Engine adapters behind one contract (:mod:`backends.contract`), found by name (:mod:`backends.registry`).
+
+Engine packages (warp, newton, mujoco, ...) are imported only inside the adapter sub-packages,
+and only when an adapter is loaded.
+"""
+
+from backends.contract import (
+    BackendError,
+    BatchedSim,
+    ControlKind,
+    InvalidActionError,
+    NonFiniteStateError,
+    SimState,
+    StateLayout,
+)
+from backends.registry import UnknownBackendError, available, get, make, register
+
+__all__ = [
+    "BackendError",
+    "BatchedSim",
+    "ControlKind",
+    "InvalidActionError",
+    "NonFiniteStateError",
+    "SimState",
+    "StateLayout",
+    "UnknownBackendError",
+    "available",
+    "get",
+    "make",
+    "register",
+]

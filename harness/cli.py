@@ -1,0 +1,162 @@
+"""``python -m harness VERB ...``: the benchmark's command line.
+
+Verbs: ``list`` (backends and tasks), ``gradcheck`` (autograd vs finite differences),
+``throughput`` (env-steps/s forward-only and forward+backward).
+Bad input (unknown backend/task, invalid numbers) prints one ``error:`` line and exits 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+EXIT_BAD_INPUT = 2
+
+
+class BadInput(Exception):
+    """User input we refuse: reported as one line, exit code 2."""
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
+    if not value > 0.0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a positive finite number, got {text!r}")
+    return value
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that reports errors as a single line with exit code 2."""
+
+    def error(self, message: str):
+        raise BadInput(f"{self.prog}: {message}")
+
+
+def _add_sim_args(p: argparse.ArgumentParser, num_envs: int) -> None:
+    p.add_argument("--backend", required=True, help="adapter name (see `list`)")
+    p.add_argument("--task", required=True, help="task name (see `list`)")
+    p.add_argument("--num-envs", type=_positive_int, default=num_envs)
+    p.add_argument("--device", default="cpu", help="torch/warp device, e.g. cpu or cuda:0")
+    p.add_argument("--seed", type=int, default=0)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="python -m harness", description=__doc__.split("\n")[0])
+    sub = parser.add_subparsers(dest="verb", required=True, parser_class=_Parser)
+
+    sub.add_parser("list", help="registered backends and tasks")
+
+    p = sub.add_parser("gradcheck", help="compare autograd gradients with central finite differences")
+    _add_sim_args(p, num_envs=2)
+    p.add_argument("--steps", type=_positive_int, default=8, help="control steps in the rollout")
+    p.add_argument("--tolerance", type=_positive_float, default=None, help="max relative error allowed")
+    p.add_argument(
+        "--with-contact",
+        action="store_true",
+        help="start from the task's own initial height (contact) instead of a contact-free segment in the air",
+    )
+
+    p = sub.add_parser("throughput", help="env-steps/s forward-only and forward+backward")
+    _add_sim_args(p, num_envs=64)
+    p.add_argument("--horizon", type=_positive_int, default=32, help="steps per window (graph cut after each)")
+    p.add_argument("--windows", type=_positive_int, default=5, help="timed windows per variant (best is kept)")
+    p.add_argument("--out", default=None, help="write the result as JSON here (with the command that made it)")
+    return parser
+
+
+def _make_sim(args, **options):
+    # Imports here, not at module level: `list` and argument errors must not load an engine.
+    import backends
+    from tasks import make_task
+
+    task = make_task(args.task)
+    cls = backends.get(args.backend)
+    try:
+        return cls(task, num_envs=args.num_envs, device=args.device, seed=args.seed, **options)
+    except (RuntimeError, ValueError) as exc:
+        raise BadInput(f"cannot build {args.backend}/{args.task} on {args.device}: {exc}") from exc
+
+
+def _validate_names(args) -> None:
+    import backends
+    from tasks import TASKS
+
+    if args.backend not in backends.available():
+        raise BadInput(f"unknown backend {args.backend!r}; choose from: {', '.join(backends.available())}")
+    if args.task not in TASKS:
+        raise BadInput(f"unknown task {args.task!r}; choose from: {', '.join(sorted(TASKS))}")
+
+
+def cmd_list(args) -> int:
+    import backends
+    from tasks import TASKS
+
+    print("backends: " + ", ".join(backends.available()))
+    print("tasks:    " + ", ".join(sorted(TASKS)))
+    return 0
+
+
+def cmd_gradcheck(args) -> int:
+    from harness.gradcheck import DEFAULT_TOLERANCE, gradcheck
+
+    _validate_names(args)
+    sim = _make_sim(args)
+    tolerance = args.tolerance or DEFAULT_TOLERANCE
+    start_height = None
+    if not args.with_contact and sim.layout.floating_base:
+        start_height = 2.0  # high enough that `steps` of free fall never reach the ground
+    segment = "with contact" if start_height is None else f"contact-free (root lifted to {start_height} m)"
+    print(f"gradcheck {args.backend}/{args.task}: {args.num_envs} envs, {args.steps} steps, {segment}", flush=True)
+    result = gradcheck(sim, steps=args.steps, seed=args.seed, start_height=start_height)
+    print(f"  d loss / d actions:        max relative error {result.action_rel_error:.3e}")
+    print(f"  d loss / d initial state:  max relative error {result.state_rel_error:.3e}")
+    ok = result.max_rel_error <= tolerance
+    print(f"max relative error {result.max_rel_error:.3e} (tolerance {tolerance:.1e}): {'PASS' if ok else 'FAIL'}")
+    return 0 if ok else 1
+
+
+def cmd_throughput(args) -> int:
+    from harness.results import provenance, write_json
+    from harness.throughput import measure
+
+    _validate_names(args)
+    sim = _make_sim(args, max_graph_steps=max(64, args.horizon))
+    bare = getattr(sys.modules[type(sim).__module__], "bare_tape_rollout", None)
+    print(f"throughput {args.backend}/{args.task}: {args.num_envs} envs, windows of {args.horizon} steps", flush=True)
+    result = measure(sim, horizon=args.horizon, windows=args.windows, seed=args.seed, bare=bare)
+    print(f"  forward only:        {result.forward_steps_per_s:10.0f} env-steps/s")
+    print(f"  forward + backward:  {result.forward_backward_steps_per_s:10.0f} env-steps/s")
+    if result.bare_engine_steps_per_s is not None:
+        print(f"  bare engine tape:    {result.bare_engine_steps_per_s:10.0f} env-steps/s (forward + backward)")
+        print(f"  adapter / bare time: {result.overhead_ratio:10.3f}")
+    if args.out:
+        path = write_json(args.out, {"result": result.as_dict(), "provenance": provenance()})
+        print(f"wrote {path}")
+    return 0
+
+
+VERBS = {"list": cmd_list, "gradcheck": cmd_gradcheck, "throughput": cmd_throughput}
+
+
+def main(argv: list[str] | None = None) -> int:
+    try:
+        args = build_parser().parse_args(argv)
+        return VERBS[args.verb](args)
+    except BadInput as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130

@@ -1,0 +1,89 @@
+"""Env-steps per second of an adapter, forward-only and forward+backward over SHAC-style windows."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass
+
+import torch
+
+from backends.contract import BatchedSim
+
+
+@dataclass
+class ThroughputResult:
+    backend: str
+    task: str
+    num_envs: int
+    horizon: int
+    windows: int
+    forward_steps_per_s: float
+    forward_backward_steps_per_s: float
+    bare_engine_steps_per_s: float | None = None  # the engine's own tape rollout, if the adapter has one
+
+    @property
+    def overhead_ratio(self) -> float | None:
+        """Adapter time / bare engine time for the same forward+backward window (1.0 = no overhead)."""
+        if self.bare_engine_steps_per_s is None:
+            return None
+        return self.bare_engine_steps_per_s / self.forward_backward_steps_per_s
+
+    def as_dict(self) -> dict:
+        return {**asdict(self), "overhead_ratio": self.overhead_ratio}
+
+
+def _window(sim: BatchedSim, horizon: int, grad: bool, gen: torch.Generator) -> float:
+    """Seconds for one window of ``horizon`` adapter steps, plus the backward pass if ``grad``.
+
+    The loss touches every output of every step (all generalized coordinates), so the backward
+    pass runs each step's full adjoint, as a training loss would, but no task code is timed:
+    this measures the adapter, comparable with the bare engine rollout.
+    """
+    task = sim.task
+    sim.cut_graph()
+    actions = [(2.0 * torch.rand(sim.num_envs, task.action_dim, generator=gen) - 1.0) for _ in range(horizon)]
+    start = time.perf_counter()
+    if grad:
+        params = [a.to(sim.device).requires_grad_(True) for a in actions]
+        loss = 0.0
+        for a in params:
+            state = sim.step(a)
+            loss = loss + state.joint_q.sum() + state.joint_qd.sum()
+        loss.backward()
+    else:
+        with torch.no_grad():
+            for a in actions:
+                sim.step(a.to(sim.device))
+    elapsed = time.perf_counter() - start
+    sim.reset()  # keep every window in the same regime (no drift into fallen/flying states)
+    return elapsed
+
+
+def measure(sim: BatchedSim, horizon: int = 32, windows: int = 5, seed: int = 0, bare=None) -> ThroughputResult:
+    """Best-of-``windows`` rates after one warm-up window each (Warp compiles on first use).
+
+    ``bare`` is an optional ``f(sim, horizon) -> seconds`` reference rollout of the raw engine.
+    """
+    gen = torch.Generator().manual_seed(seed)
+    steps = sim.num_envs * horizon
+    best = {False: float("inf"), True: float("inf"), "bare": float("inf")}
+    for grad in (False, True):
+        _window(sim, horizon, grad, gen)  # warm-up: kernel compilation, buffer allocation
+    # interleave the variants so a slow patch of machine time hits all of them alike
+    for _ in range(windows):
+        for grad in (False, True):
+            best[grad] = min(best[grad], _window(sim, horizon, grad, gen))
+        if bare is not None:
+            best["bare"] = min(best["bare"], bare(sim, horizon))
+    rates = {k: steps / v for k, v in best.items()}
+    bare_rate = rates["bare"] if bare is not None else None
+    return ThroughputResult(
+        backend=sim.name,
+        task=sim.task.name,
+        num_envs=sim.num_envs,
+        horizon=horizon,
+        windows=windows,
+        forward_steps_per_s=rates[False],
+        forward_backward_steps_per_s=rates[True],
+        bare_engine_steps_per_s=bare_rate,
+    )

@@ -1,0 +1,85 @@
+"""A stateful vector environment: one task on one adapter, with episodes and automatic resets.
+
+This is the layer algorithms talk to (harness -> algorithm -> this env -> adapter -> engine).
+Observations and rewards are differentiable w.r.t. the actions through the adapter's ``step``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from backends.contract import BatchedSim
+from tasks.base import Task
+
+
+@dataclass
+class StepResult:
+    obs: torch.Tensor  # (N, obs_dim) observation to act on next (post-reset rows are fresh)
+    reward: torch.Tensor  # (N,)
+    terminated: torch.Tensor  # (N,) bool: ended by the task's termination condition
+    truncated: torch.Tensor  # (N,) bool: ended by the episode time limit
+    final_obs: torch.Tensor  # (N, obs_dim) observation reached by this step, before any reset
+    episode_return: torch.Tensor  # (N,) return of the episode that just ended (valid where done)
+    episode_length: torch.Tensor  # (N,) length of the episode that just ended (valid where done)
+
+    @property
+    def done(self) -> torch.Tensor:
+        return self.terminated | self.truncated
+
+
+class TaskEnv:
+    def __init__(self, task: Task, sim: BatchedSim, episode_length: int | None = None):
+        self.task = task
+        self.sim = sim
+        self.num_envs = sim.num_envs
+        self.device = sim.device
+        self.episode_length = int(episode_length or task.episode_length)
+        self.obs_dim = task.obs_dim
+        self.action_dim = task.action_dim
+        self.prev_actions = torch.zeros(self.num_envs, task.action_dim, device=self.device)
+        self.steps = torch.zeros(self.num_envs, dtype=torch.long, device=self.device)
+        self.returns = torch.zeros(self.num_envs, device=self.device)
+        self.obs = self.task.observe(sim.state, self.prev_actions)
+
+    def reset(self) -> torch.Tensor:
+        self.sim.reset()
+        self.prev_actions = torch.zeros_like(self.prev_actions)
+        self.steps.zero_()
+        self.returns.zero_()
+        self.obs = self.task.observe(self.sim.state, self.prev_actions)
+        return self.obs
+
+    def cut_graph(self) -> torch.Tensor:
+        """Window boundary: no gradient path from anything later to anything before this call."""
+        self.sim.cut_graph()
+        self.prev_actions = self.prev_actions.detach()
+        self.obs = self.obs.detach()
+        return self.obs
+
+    def step(self, actions: torch.Tensor) -> StepResult:
+        state = self.sim.step(actions)
+        actions = torch.clamp(actions, -1.0, 1.0)
+        obs = self.task.observe(state, actions)
+        reward = self.task.reward(state, obs, actions)
+        self.steps += 1
+        self.returns += reward.detach()
+        terminated = self.task.terminated(state, obs)
+        truncated = (self.steps >= self.episode_length) & ~terminated
+        done = terminated | truncated
+        episode_return = self.returns.clone()
+        episode_length = self.steps.clone()
+        final_obs = obs
+        self.prev_actions = actions
+        if bool(done.any()):
+            ids = done.nonzero().flatten()
+            self.sim.reset(ids)  # cuts the graph for these envs only
+            keep = ~done
+            self.prev_actions = torch.where(keep[:, None], actions, torch.zeros_like(actions))
+            fresh = self.task.observe(self.sim.state, self.prev_actions)
+            obs = torch.where(keep[:, None], obs, fresh.detach())
+            self.steps[ids] = 0
+            self.returns[ids] = 0.0
+        self.obs = obs
+        return StepResult(obs, reward, terminated, truncated, final_obs, episode_return, episode_length)

@@ -1,0 +1,196 @@
+"""The Newton adapter on the Ant: gradients, stability, graph cuts, layout and bad input."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+pytest.importorskip("newton")
+
+from backends import BackendError, InvalidActionError, NonFiniteStateError, make  # noqa: E402
+from backends.newton import NewtonSim  # noqa: E402
+from harness.gradcheck import DEFAULT_TOLERANCE, gradcheck  # noqa: E402
+from tasks import make_task  # noqa: E402
+from tasks.rotations import quat_from_angle_axis, quat_mul  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def ant():
+    return make_task("ant")
+
+
+@pytest.fixture(scope="module")
+def small(ant):
+    return make("newton", ant, num_envs=4, seed=0, max_graph_steps=16)
+
+
+def _actions(n, gen, grad=False):
+    a = 2.0 * torch.rand(n, 8, generator=gen) - 1.0
+    return a.requires_grad_(grad)
+
+
+# -- (a) gradients against finite differences ------------------------------------------------
+def test_gradients_match_finite_differences_on_contact_free_rollout(ant):
+    """8 control steps, w.r.t. every action and the initial state.
+
+    Tolerance 2e-2 relative (vector norm per env): the simulation is float32, so central
+    differences carry ~1e-4..1e-3 relative round-off; the adapter measures ~5e-4..8e-4.
+    A wrong gradient (lost term, stale tape) is off by O(1): see the negative control below.
+    """
+    sim = make("newton", ant, num_envs=2, seed=1)
+    result = gradcheck(sim, steps=8, seed=0, start_height=2.0)
+    assert result.action_rel_error < DEFAULT_TOLERANCE
+    assert result.state_rel_error < DEFAULT_TOLERANCE
+
+
+class _DropsStateGradient(NewtonSim):
+    """A deliberately broken adapter: forgets d(next state)/d(previous state) across steps."""
+
+    name = "broken"
+
+    def simulate(self, state, control):
+        return super().simulate(state.detach(), control)
+
+
+def test_gradcheck_catches_a_broken_adapter(ant):
+    sim = _DropsStateGradient(ant, num_envs=2, seed=1)
+    result = gradcheck(sim, steps=8, seed=0, start_height=2.0)
+    assert result.max_rel_error > 10 * DEFAULT_TOLERANCE
+
+
+# -- (b) stability ---------------------------------------------------------------------------
+def test_64_envs_1000_random_steps_stay_finite_and_in_a_sane_box(ant):
+    sim = make("newton", ant, num_envs=64, seed=2)
+    gen = torch.Generator().manual_seed(0)
+    lowest, highest, farthest = math.inf, -math.inf, 0.0
+    with torch.no_grad():
+        for _ in range(1000):
+            state = sim.step(_actions(64, gen))  # raises NonFiniteStateError on any NaN/inf
+            z = state.root_pos[:, 2]
+            lowest, highest = min(lowest, float(z.min())), max(highest, float(z.max()))
+            farthest = max(farthest, float(state.root_pos[:, :2].abs().max()))
+            assert torch.isfinite(state.joint_qd).all()
+    # torso sphere (r = 0.25) neither sinks through the ground nor gets launched, nor flies away
+    assert 0.1 < lowest and highest < 1.5, (lowest, highest)
+    assert farthest < 10.0, farthest
+
+
+# -- (c) graph cuts ----------------------------------------------------------------------------
+def test_reset_cuts_the_graph_only_for_reset_envs(small):
+    gen = torch.Generator().manual_seed(1)
+    small.reset()
+    small.cut_graph()
+    first = _actions(4, gen, grad=True)
+    small.step(first)
+    small.reset([1, 3])
+    state = small.step(_actions(4, gen))
+    state.root_pos[:, 0].sum().backward()
+    per_env = first.grad.abs().sum(dim=1)
+    assert per_env[1] == 0 and per_env[3] == 0
+    assert per_env[0] > 0 and per_env[2] > 0
+
+
+def test_window_cut_leaves_no_path_to_earlier_steps(small):
+    gen = torch.Generator().manual_seed(2)
+    small.reset()
+    before = _actions(4, gen, grad=True)
+    small.step(before)
+    small.cut_graph()
+    after = _actions(4, gen, grad=True)
+    state = small.step(after)
+    loss = state.joint_q.sum() + state.engine.sum()
+    g_before, g_after = torch.autograd.grad(loss, (before, after), allow_unused=True)
+    assert g_before is None
+    assert g_after is not None and g_after.abs().sum() > 0
+
+
+def test_graph_longer_than_the_buffer_ring_refuses_backward(ant):
+    sim = make("newton", ant, num_envs=2, seed=0, max_graph_steps=3)
+    gen = torch.Generator().manual_seed(3)
+    first = _actions(2, gen, grad=True)
+    sim.step(first)
+    for _ in range(4):
+        state = sim.step(_actions(2, gen))
+    with pytest.raises(BackendError, match="max_graph_steps"):
+        state.joint_q.sum().backward()
+
+
+# -- state layout ------------------------------------------------------------------------------
+def test_layout_velocities_are_world_frame(small, ant):
+    """Root linear velocity moves the root along world x; angular velocity turns it about world z."""
+    q, qd = ant.default_state()
+    q, qd = q.repeat(4, 1), qd.repeat(4, 1)
+    q[:, 2] = 2.0  # in the air
+    tilt = quat_from_angle_axis(torch.tensor(math.pi / 2), torch.tensor([1.0, 0.0, 0.0]))
+    q[:, 3:7] = tilt  # so a body-frame z rate would differ from a world-frame one
+    qd[:, 0] = 1.0
+    qd[:, 5] = 1.0
+    small.state = small.state_from_generalized(q, qd)
+    with torch.no_grad():
+        state = small.step(torch.zeros(4, 8))
+    dt = ant.physics.frame_dt
+    assert torch.allclose(state.root_pos[:, 0], torch.full((4,), dt), rtol=0.05)
+    assert torch.allclose(state.root_lin_vel[:, 0], torch.ones(4), atol=0.02)
+    expected = quat_mul(quat_from_angle_axis(torch.tensor(dt), torch.tensor([0.0, 0.0, 1.0])), tilt)
+    dots = (state.root_quat * expected).sum(-1).abs()
+    assert torch.all(dots > 1 - 1e-4), dots
+    assert torch.allclose(state.root_ang_vel[:, 2], torch.ones(4), atol=0.05)
+
+
+def test_same_seed_same_trajectory(ant):
+    runs = []
+    for _ in range(2):
+        sim = make("newton", ant, num_envs=3, seed=7)
+        gen = torch.Generator().manual_seed(0)
+        with torch.no_grad():
+            for _ in range(5):
+                state = sim.step(_actions(3, gen))
+        runs.append(state.joint_q)
+    assert torch.equal(runs[0], runs[1])
+    other = make("newton", ant, num_envs=3, seed=8)
+    assert not torch.equal(other.state.joint_q, make("newton", ant, num_envs=3, seed=7).state.joint_q)
+
+
+# -- bad input -----------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    "actions, match",
+    [
+        (torch.zeros(4, 7), "shape"),
+        (torch.zeros(3, 8), "shape"),
+        (torch.zeros(4, 8, dtype=torch.int64), "floating-point"),
+        (torch.tensor([[0.0] * 8, [float("nan")] + [0.0] * 7, [0.0] * 8, [float("inf")] * 8]), r"env\(s\) \[1, 3\]"),
+        ([[0.0] * 8] * 4, "torch.Tensor"),
+    ],
+)
+def test_bad_actions_are_refused_before_the_engine(small, actions, match):
+    before = small.step_count
+    with pytest.raises(InvalidActionError, match=match):
+        small.step(actions)
+    assert small.step_count == before
+
+
+def test_simulation_nan_is_reported_per_env(small, ant):
+    q, qd = ant.sample_initial_state(4, torch.Generator().manual_seed(0))
+    qd[2, 6:] = 1e38  # joint velocities that overflow float32 arithmetic in env 2 only
+    small.state = small.state_from_generalized(q, qd)
+    kept = small.state
+    with pytest.raises(NonFiniteStateError) as info, torch.no_grad():
+        small.step(torch.zeros(4, 8))
+    assert info.value.env_ids == [2]
+    assert small.state is kept  # the non-finite result was not stored
+    small.reset(info.value.env_ids)
+    with torch.no_grad():
+        assert torch.isfinite(small.step(torch.zeros(4, 8)).engine).all()
+
+
+def test_malformed_asset_is_one_clear_error(tmp_path, ant):
+    bad = tmp_path / "broken.xml"
+    bad.write_text("<mujoco><worldbody><body name='a'><geom type='sphere' size='x'/></worldbody></mujoco>")
+
+    class BrokenAnt(type(ant)):
+        asset_path = bad
+
+    with pytest.raises(BackendError, match="cannot load mjcf asset"):
+        make("newton", BrokenAnt(), num_envs=1)
