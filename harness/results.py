@@ -29,8 +29,11 @@ def _git_commit() -> str | None:
         return None
 
 
-def provenance(argv: list[str] | None = None) -> dict:
-    """The command, code version, package versions and machine behind a result."""
+def provenance(command: str | None = None) -> dict:
+    """The command, code version, package versions and machine behind a result.
+
+    ``command`` defaults to the harness invocation of this process.
+    """
     versions = {}
     for name in _PACKAGES:
         try:
@@ -38,7 +41,7 @@ def provenance(argv: list[str] | None = None) -> dict:
         except metadata.PackageNotFoundError:
             versions[name] = None
     return {
-        "command": "python -m harness " + " ".join(argv if argv is not None else sys.argv[1:]),
+        "command": command or "python -m harness " + " ".join(sys.argv[1:]),
         "git_commit": _git_commit(),
         "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "python": platform.python_version(),

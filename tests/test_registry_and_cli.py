@@ -1,0 +1,79 @@
+"""Backend registry (entry points) and the harness command line."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from importlib.metadata import EntryPoint
+
+import pytest
+
+from backends import registry
+from harness.cli import main
+
+
+def _run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "harness", *args], capture_output=True, text=True, timeout=600)
+
+
+def test_builtin_adapter_is_found_through_its_entry_point():
+    assert "newton" in registry._entry_points()  # declared in pyproject, not hard-coded
+    assert "newton" in registry.available()
+
+
+def test_third_party_entry_point_is_loaded_by_name(monkeypatch):
+    fake = EntryPoint(name="thirdparty", value="backends.newton:NewtonSim", group=registry.ENTRY_POINT_GROUP)
+    monkeypatch.setattr(registry, "entry_points", lambda group: [fake] if group == registry.ENTRY_POINT_GROUP else [])
+    assert registry.available() == ["thirdparty"]
+    assert registry.get("thirdparty").__name__ == "NewtonSim"
+
+
+def test_entry_point_that_is_not_an_adapter_is_refused(monkeypatch):
+    fake = EntryPoint(name="bogus", value="tasks.ant:Ant", group=registry.ENTRY_POINT_GROUP)
+    monkeypatch.setattr(registry, "entry_points", lambda group: [fake])
+    with pytest.raises(TypeError, match="not a BatchedSim"):
+        registry.get("bogus")
+
+
+def test_unknown_backend_names_the_choices():
+    with pytest.raises(registry.UnknownBackendError) as info:
+        registry.get("bullet")
+    assert "choose from: " in str(info.value) and "newton" in str(info.value)
+
+
+def test_cli_list():
+    out = _run("list")
+    assert out.returncode == 0, out.stderr
+    assert "newton" in out.stdout and "ant" in out.stdout
+
+
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["gradcheck", "--backend", "bullet", "--task", "ant"], "unknown backend 'bullet'; choose from: "),
+        (["throughput", "--backend", "newton", "--task", "dog"], "unknown task 'dog'; choose from: ant"),
+        (["throughput", "--backend", "newton", "--task", "ant", "--num-envs", "-3"], "positive integer"),
+        (["gradcheck", "--backend", "newton", "--task", "ant", "--tolerance", "nan"], "positive finite"),
+        (["fly"], "invalid choice"),
+    ],
+)
+def test_bad_input_is_one_line_and_exit_2(args, needle, capsys):
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("error: ")
+    assert needle in err
+
+
+def test_throughput_verb_writes_a_result_with_its_command(tmp_path):
+    out_file = tmp_path / "tp.json"
+    args = ["throughput", "--backend", "newton", "--task", "ant", "--num-envs", "2", "--horizon", "2"]
+    out = _run(*args, "--windows", "1", "--out", str(out_file))
+    assert out.returncode == 0, out.stderr
+    assert "forward + backward" in out.stdout
+    payload = json.loads(out_file.read_text())
+    result = payload["result"]
+    assert result["forward_steps_per_s"] > 0 and result["forward_backward_steps_per_s"] > 0
+    assert result["overhead_ratio"] > 0
+    assert payload["provenance"]["command"].startswith("python -m harness throughput --backend newton")
+    assert payload["provenance"]["packages"]["newton"] == "1.8.0"
