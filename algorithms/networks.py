@@ -109,12 +109,24 @@ class GaussianActor(nn.Module):
         """The action distribution (for log-probs / entropy logging)."""
         return torch.distributions.Normal(self.mu_net(obs), self.logstd.exp())
 
-    def forward(self, obs: Tensor, deterministic: bool = False) -> Tensor:
+    def head(self, obs: Tensor) -> Tensor:
+        """``[mean, log_std]`` per sample (log_std broadcast): every way theta reaches an action."""
         mean = self.mu_net(obs)
-        if deterministic:
-            return mean
-        eps = torch.randn_like(mean)
-        return mean + self.logstd.exp() * eps
+        return torch.cat((mean, self.logstd.expand_as(mean)), dim=-1)
+
+    @staticmethod
+    def act(head: Tensor, eps: Tensor) -> tuple[Tensor, Tensor]:
+        """(action, log-prob) for noise ``eps`` (zeros: the deterministic action)."""
+        mean, log_std = head.chunk(2, dim=-1)
+        log_prob = (-0.5 * eps.pow(2) - log_std - _HALF_LOG_2PI).sum(dim=-1)
+        return mean + log_std.exp() * eps, log_prob
+
+    def forward(self, obs: Tensor, deterministic: bool = False) -> Tensor:
+        head = self.head(obs)
+        eps = torch.zeros_like(head[..., : self.logstd.numel()])
+        if not deterministic:
+            eps.normal_()
+        return self.act(head, eps)[0]
 
 
 class SquashedGaussianActor(nn.Module):
@@ -152,12 +164,19 @@ class SquashedGaussianActor(nn.Module):
         lo, hi = self.log_std_bounds
         return mean, log_std.clamp(lo, hi)
 
+    def head(self, obs: Tensor) -> Tensor:
+        """``[mean, clamped log_std]`` of the pre-tanh Gaussian: every way theta reaches an action."""
+        return torch.cat(self.dist_params(obs), dim=-1)
+
     def forward(self, obs: Tensor, deterministic: bool = False) -> tuple[Tensor, Tensor]:
         mean, log_std = self.dist_params(obs)
-        if deterministic:
-            eps = torch.zeros_like(mean)
-        else:
-            eps = torch.randn_like(mean)
+        eps = torch.zeros_like(mean) if deterministic else torch.randn_like(mean)
+        return self.act(torch.cat((mean, log_std), dim=-1), eps)
+
+    @staticmethod
+    def act(head: Tensor, eps: Tensor) -> tuple[Tensor, Tensor]:
+        """(tanh-squashed action, its log-prob) for noise ``eps`` (zeros: deterministic)."""
+        mean, log_std = head.chunk(2, dim=-1)
         u = mean + log_std.exp() * eps
         # Gaussian log-density written with eps directly: (u - mean) / std == eps
         # exactly, and avoiding the division keeps it accurate for tiny std.

@@ -8,6 +8,7 @@ Bad input (unknown backend/task, invalid numbers) prints one ``error:`` line and
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 
 EXIT_BAD_INPUT = 2
@@ -52,6 +53,47 @@ def _add_sim_args(p: argparse.ArgumentParser, num_envs: int) -> None:
     p.add_argument("--seed", type=int, default=0)
 
 
+def _add_algo_overrides(p: argparse.ArgumentParser) -> None:
+    """One flag per hyperparameter of AlgoConfig (``--actor-lr``, ``--lambda-batches`` = b_lambda, ...)."""
+    from algorithms.config import AlgoConfig
+
+    group = p.add_argument_group("hyperparameter overrides (default: the algorithm's preset)")
+    for f in dataclasses.fields(AlgoConfig):
+        if f.name in ("algo", "extra"):
+            continue
+        flag = "--" + f.name.replace("_", "-")
+        default = f.default
+        if isinstance(default, bool):
+            group.add_argument(flag, type=_bool, default=None, metavar="{true,false}")
+        elif isinstance(default, tuple):
+            kind = type(default[0])
+            group.add_argument(flag, type=kind, nargs=len(default) if kind is float else "+", default=None)
+        elif f.name in ("num_envs", "horizon"):
+            group.add_argument(flag, type=_positive_int, default=None)
+        elif isinstance(default, int | float) or default is None:
+            group.add_argument(flag, type=_number, default=None)
+        else:
+            group.add_argument(flag, type=str, default=None)
+
+
+def _bool(text: str) -> bool:
+    if text.lower() in ("1", "true", "yes"):
+        return True
+    if text.lower() in ("0", "false", "no"):
+        return False
+    raise argparse.ArgumentTypeError(f"expected true or false, got {text!r}")
+
+
+def _number(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if value != value or value in (float("inf"), float("-inf")):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return int(value) if value.is_integer() and "." not in text and "e" not in text.lower() else value
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="python -m harness", description=__doc__.split("\n")[0])
     sub = parser.add_subparsers(dest="verb", required=True, parser_class=_Parser)
@@ -67,6 +109,24 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="start from the task's own initial height (contact) instead of a contact-free segment in the air",
     )
+
+    p = sub.add_parser("train", help="train an algorithm; writes config.json, metrics.jsonl, checkpoints")
+    p.add_argument("--backend", help="adapter name (see `list`)")
+    p.add_argument("--task", help="task name (see `list`)")
+    p.add_argument("--algo", help="one of: shac, shac-tdfixed, shac-tdadpt, sapo, sapo-tdfixed, sapo-tdadpt")
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--epochs", type=_positive_int, default=None, help="total epochs (with --resume: a new total)")
+    p.add_argument("--out", help="run directory to create")
+    p.add_argument("--resume", metavar="DIR", help="continue the interrupted run in DIR")
+    p.add_argument("--checkpoint-every", type=_positive_int, default=5)
+    _add_algo_overrides(p)
+
+    p = sub.add_parser("eval", help="evaluate a run's final (and initial) policy; writes DIR/eval.json")
+    p.add_argument("--run", required=True, help="run directory written by `train`")
+    p.add_argument("--seeds", type=_positive_int, default=10)
+    p.add_argument("--num-envs", type=_positive_int, default=None, help="default: twice the training env count")
+    p.add_argument("--max-steps", type=_positive_int, default=None, help="cap on steps per episode")
 
     p = sub.add_parser("throughput", help="env-steps/s forward-only and forward+backward")
     _add_sim_args(p, num_envs=64)
@@ -147,7 +207,88 @@ def cmd_throughput(args) -> int:
     return 0
 
 
-VERBS = {"list": cmd_list, "gradcheck": cmd_gradcheck, "throughput": cmd_throughput}
+def _algo_config(args):
+    from algorithms.config import AlgoConfig, preset
+
+    try:
+        cfg = preset(args.algo)
+    except KeyError as exc:
+        raise BadInput(exc.args[0]) from None
+    changes = {}
+    for f in dataclasses.fields(AlgoConfig):
+        value = getattr(args, f.name, None)
+        if value is not None and f.name not in ("algo", "extra"):
+            changes[f.name] = tuple(value) if isinstance(value, list) else value
+    try:
+        return cfg.replace(**changes).validate()
+    except ValueError as exc:
+        raise BadInput(f"bad configuration: {exc}") from None
+
+
+def cmd_train(args) -> int:
+    from harness.train import RunError, train
+
+    command = "python -m harness " + " ".join(sys.argv[1:])
+    try:
+        if args.resume:
+            from algorithms.config import AlgoConfig
+
+            train(
+                args.resume,
+                "",
+                "",
+                AlgoConfig(),
+                args.epochs or 0,
+                resume=True,
+                checkpoint_every=args.checkpoint_every,
+                command=command,
+            )
+            return 0
+        missing = [name for name in ("backend", "task", "algo", "epochs", "out") if getattr(args, name) is None]
+        if missing:
+            raise BadInput("train needs " + ", ".join("--" + m for m in missing) + " (or --resume DIR)")
+        _validate_names(args)
+        cfg = _algo_config(args)
+        train(
+            args.out,
+            args.task,
+            args.backend,
+            cfg,
+            args.epochs,
+            seed=args.seed,
+            device=args.device,
+            checkpoint_every=args.checkpoint_every,
+            command=command,
+        )
+    except RunError as exc:
+        raise BadInput(str(exc)) from None
+    return 0
+
+
+def cmd_eval(args) -> int:
+    from pathlib import Path
+
+    from harness.train import evaluate
+
+    if not (Path(args.run) / "config.json").exists():
+        raise BadInput(f"{args.run} is not a run directory (no config.json)")
+    result = evaluate(args.run, seeds=args.seeds, num_envs=args.num_envs, max_steps=args.max_steps)
+    print(f"initial policy: mean return {result['initial']['mean_return']:.1f}")
+    print(
+        f"final policy:   mean return {result['final']['mean_return']:.1f} "
+        f"(std over {args.seeds} seeds {result['final']['std_over_seeds']:.1f})"
+    )
+    print(f"wrote {Path(args.run) / 'eval.json'}")
+    return 0
+
+
+VERBS = {
+    "list": cmd_list,
+    "gradcheck": cmd_gradcheck,
+    "throughput": cmd_throughput,
+    "train": cmd_train,
+    "eval": cmd_eval,
+}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import torch
 
-from backends.contract import BatchedSim
+from backends.contract import BatchedSim, SimState
 from tasks.base import Task
 
 
@@ -42,6 +42,28 @@ class TaskEnv:
         self.steps = torch.zeros(self.num_envs, dtype=torch.long, device=self.device)
         self.returns = torch.zeros(self.num_envs, device=self.device)
         self.obs = self.task.observe(sim.state, self.prev_actions)
+
+    def state_dict(self) -> dict:
+        """Everything needed to continue the episodes exactly (for checkpoints)."""
+        sim = self.sim
+        return {
+            "sim_state": {k: v.detach().clone() for k, v in sim.state.tensors().items()},
+            "sim_generator": sim.generator.get_state(),
+            "sim_step_count": sim.step_count,
+            "prev_actions": self.prev_actions.detach().clone(),
+            "steps": self.steps.clone(),
+            "returns": self.returns.clone(),
+            "obs": self.obs.detach().clone(),
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        self.sim.state = SimState(**{k: v.to(self.device) for k, v in state["sim_state"].items()})
+        self.sim.generator.set_state(state["sim_generator"])
+        self.sim.step_count = state["sim_step_count"]
+        self.prev_actions = state["prev_actions"].to(self.device)
+        self.steps = state["steps"].to(self.device)
+        self.returns = state["returns"].to(self.device)
+        self.obs = state["obs"].to(self.device)
 
     def reset(self) -> torch.Tensor:
         self.sim.reset()
