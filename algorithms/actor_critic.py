@@ -38,6 +38,8 @@ from algorithms.returns import (
     td_lambda_returns,
 )
 
+PHI_LIMIT = 10.0  # |phi| <= 10 keeps sigmoid(phi) in [4.5e-5, 1 - 4.5e-5]; float32 rounds to 1 beyond ~17
+
 
 @dataclass
 class Window:
@@ -244,6 +246,8 @@ class FirstOrderActorCritic(nn.Module):
                 loss.backward()
                 if torch.isfinite(self.phi.grad):
                     self.lambda_opt.step()
+                    with torch.no_grad():  # keep lambda strictly inside (0, 1) even in float32
+                        self.phi.clamp_(-PHI_LIMIT, PHI_LIMIT)
                 losses.append(float(loss.detach()))
         return sum(losses) / len(losses)
 
@@ -266,7 +270,7 @@ class FirstOrderActorCritic(nn.Module):
                     self.critic_opt.step()
                 else:
                     skipped += 1
-                last = float(loss) / cfg.num_critics
+                last = float(loss.detach()) / cfg.num_critics
         if self.target_critics is not None:
             a = cfg.target_critic_alpha
             with torch.no_grad():

@@ -128,6 +128,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--num-envs", type=_positive_int, default=None, help="default: twice the training env count")
     p.add_argument("--max-steps", type=_positive_int, default=None, help="cap on steps per episode")
 
+    p = sub.add_parser("report", help="table (md, csv) and curves (png) from run directories")
+    p.add_argument("--runs", nargs="+", required=True, help="run directories written by `train`")
+    p.add_argument("--out", required=True, help="output prefix, e.g. results/ant_newton_shac_vs_tdadpt")
+    p.add_argument("--no-plot", action="store_true")
+
+    p = sub.add_parser("sweep", help="train (or resume) and evaluate several algorithms, then report")
+    p.add_argument("--backend", required=True)
+    p.add_argument("--task", required=True)
+    p.add_argument("--algos", nargs="+", required=True)
+    p.add_argument("--seeds", type=int, nargs="+", default=[0])
+    p.add_argument("--epochs", type=_positive_int, required=True)
+    p.add_argument("--num-envs", type=_positive_int, default=64)
+    p.add_argument("--horizon", type=_positive_int, default=32)
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--eval-seeds", type=_positive_int, default=10)
+    p.add_argument("--eval-max-steps", type=_positive_int, default=None)
+    p.add_argument("--out", required=True, help="directory for the runs and the report")
+
     p = sub.add_parser("throughput", help="env-steps/s forward-only and forward+backward")
     _add_sim_args(p, num_envs=64)
     p.add_argument("--horizon", type=_positive_int, default=32, help="steps per window (graph cut after each)")
@@ -282,7 +300,65 @@ def cmd_eval(args) -> int:
     return 0
 
 
+def cmd_report(args) -> int:
+    from pathlib import Path
+
+    from harness.report import plot_curves, summarize, write_table
+
+    runs = [Path(r) for r in args.runs]
+    missing = [str(r) for r in runs if not (r / "config.json").exists()]
+    if missing:
+        raise BadInput(f"not run directories (no config.json): {', '.join(missing)}")
+    command = "python -m harness " + " ".join(sys.argv[1:])
+    md, csv = write_table([summarize(r) for r in runs], args.out, command)
+    print(f"wrote {md} and {csv}")
+    if not args.no_plot:
+        print(f"wrote {plot_curves(runs, Path(args.out).with_suffix('.png'))}")
+    return 0
+
+
+def cmd_sweep(args) -> int:
+    from pathlib import Path
+
+    from harness.report import plot_curves, summarize, write_table
+    from harness.train import evaluate, train
+
+    _validate_names(args)
+    for name in args.algos:
+        args.algo = name
+        _algo_config(args)  # refuse a bad name before any training starts
+    command = "python -m harness " + " ".join(sys.argv[1:])
+    runs = []
+    for name in args.algos:
+        for seed in args.seeds:
+            args.algo = name
+            cfg = _algo_config(args).replace(num_envs=args.num_envs, horizon=args.horizon)
+            run = Path(args.out) / f"{args.task}_{args.backend}_{name}_s{seed}"
+            resume = (run / "config.json").exists()
+            print(f"== {run.name}{' (resume)' if resume else ''}", flush=True)
+            train(
+                run,
+                args.task,
+                args.backend,
+                cfg,
+                args.epochs,
+                seed=seed,
+                device=args.device,
+                resume=resume,
+                command=command,
+            )
+            evaluate(run, seeds=args.eval_seeds, max_steps=args.eval_max_steps)
+            runs.append(run)
+    prefix = Path(args.out) / "summary"
+    md, _ = write_table([summarize(r) for r in runs], prefix, command)
+    plot_curves(runs, prefix.with_suffix(".png"))
+    print(Path(md).read_text())
+    return 0
+
+
 VERBS = {
+    "report": cmd_report,
+    "sweep": cmd_sweep,
     "list": cmd_list,
     "gradcheck": cmd_gradcheck,
     "throughput": cmd_throughput,

@@ -103,7 +103,10 @@ class NewtonSim(BatchedSim):
         self._apply_physics(model)
         self.model = model
         self.solver = newton.solvers.SolverSemiImplicit(
-            model, angular_damping=float(self.options.get("angular_damping", 0.05))
+            model,
+            angular_damping=float(self.options.get("angular_damping", 0.05)),
+            joint_attach_ke=float(self.options.get("joint_attach_ke", 1.0e4)),
+            joint_attach_kd=float(self.options.get("joint_attach_kd", 1.0e2)),
         )
         self.pipeline = newton.CollisionPipeline(model, requires_grad=True)
         self._frames: list[_Frame] = []
