@@ -146,6 +146,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--eval-max-steps", type=_positive_int, default=None)
     p.add_argument("--out", required=True, help="directory for the runs and the report")
 
+    p = sub.add_parser("grad-growth", help="open-loop action-gradient norms along a run's policy trajectories")
+    p.add_argument("--run", required=True)
+    p.add_argument("--variant", action="append", default=None, help="physics changes, e.g. contact_kf=300")
+    p.add_argument("--windows", type=_positive_int, default=3)
+    p.add_argument("--out", default=None)
+
     p = sub.add_parser("throughput", help="env-steps/s forward-only and forward+backward")
     _add_sim_args(p, num_envs=64)
     p.add_argument("--horizon", type=_positive_int, default=32, help="steps per window (graph cut after each)")
@@ -356,7 +362,28 @@ def cmd_sweep(args) -> int:
     return 0
 
 
+def cmd_grad_growth(args) -> int:
+    from pathlib import Path
+
+    from harness.grad_growth import grad_growth, parse_variant
+    from harness.results import provenance, write_json
+
+    if not (Path(args.run) / "checkpoint.pt").exists():
+        raise BadInput(f"{args.run} has no checkpoint.pt")
+    variants = args.variant or [""]
+    try:
+        for v in variants:
+            parse_variant(v)
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
+    result = grad_growth(args.run, variants, windows=args.windows)
+    if args.out:
+        print(f"wrote {write_json(args.out, {**result, 'provenance': provenance()})}")
+    return 0
+
+
 VERBS = {
+    "grad-growth": cmd_grad_growth,
     "report": cmd_report,
     "sweep": cmd_sweep,
     "list": cmd_list,

@@ -164,12 +164,12 @@ def train(
         "algo": cfg_dict,
         "provenance": provenance(command),
     }
-    run_dir.mkdir(parents=True, exist_ok=True)
-    write_json(config_path, config)
-
     torch.manual_seed(seed)
     random.seed(seed)
     env = _make_env(task, backend, algo_config.num_envs, device, seed, algo_config.horizon)
+    config["physics"] = dataclasses.asdict(env.task.physics)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    write_json(config_path, config)
     algo = FirstOrderActorCritic(algo_config, env.obs_dim, env.action_dim)
     progress = {"env_steps": 0, "wall_s": 0.0, "recent_returns": [], "nonfinite_events": 0}
     if resume:
