@@ -314,7 +314,7 @@ class FirstOrderActorCritic(nn.Module):
         metrics["update_s"] = time.perf_counter() - start
         self.epoch += 1
         metrics.update(
-            actor_loss=float(loss),
+            actor_loss=float(loss.detach()),
             actor_grad_norm=float(norm),
             actor_grad_var=grad_var,
             actor_update_skipped=not actor_ok,

@@ -134,11 +134,12 @@ def main(argv: list[str] | None = None) -> int:
     ant = str(make_task("ant").asset_path)
     shipped = str(newton.examples.get_asset("nv_ant.xml"))
     runs = [
-        ("semi_implicit", ant, None, 4e4, 1e3, 3e3),  # the adapter's configuration
-        ("featherstone", ant, None, 4e4, 1e3, 3e3),
-        ("semi_implicit", ant, None, 4e4, 1e4, 3e3),  # contact damping at the top of SHAC's range
-        ("semi_implicit", shipped, None, 4e4, 1e3, 3e3),  # Newton's nv_ant.xml, density 5
-        ("semi_implicit", shipped, 1000, 4e4, 1e3, 3e3),  # nv_ant.xml at density 1000
+        ("semi_implicit", ant, None, 4e4, 1e3, 3e2),  # the adapter's configuration (tasks.base.PhysicsSpec)
+        ("featherstone", ant, None, 4e4, 1e3, 3e2),
+        ("semi_implicit", ant, None, 4e4, 1e4, 3e2),  # contact damping at the top of SHAC's range
+        ("semi_implicit", ant, None, 4e4, 1e3, 3e3),  # friction slope at the top of SHAC's range
+        ("semi_implicit", shipped, None, 4e4, 1e3, 3e2),  # Newton's nv_ant.xml, density 5
+        ("semi_implicit", shipped, 1000, 4e4, 1e3, 3e2),  # nv_ant.xml at density 1000
     ]
     results = []
     for solver, asset, density, ke, kd, kf in runs:
