@@ -90,6 +90,11 @@ class AlgoConfig:
     def replace(self, **changes) -> AlgoConfig:
         return dataclasses.replace(self, **changes)
 
+    @classmethod
+    def from_dict(cls, data: dict) -> AlgoConfig:
+        """Inverse of ``dataclasses.asdict`` after a JSON round trip (lists back to tuples)."""
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
+
 
 def _shac(**changes) -> AlgoConfig:
     return AlgoConfig(algo="shac").replace(**changes)

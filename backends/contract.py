@@ -213,20 +213,22 @@ class BatchedSim(ABC):
             q, qd = self.task.sample_initial_state(self.num_envs, self.generator)
             return self.state_from_generalized(q.to(self.device), qd.to(self.device)).detach()
 
+    def _env_mask(self, env_ids: torch.Tensor | list[int]) -> torch.Tensor:
+        env_ids = torch.as_tensor(env_ids, dtype=torch.long, device=self.device)
+        if env_ids.numel() and (env_ids.min() < 0 or env_ids.max() >= self.num_envs):
+            raise IndexError(f"env ids must lie in [0, {self.num_envs}), got {env_ids.tolist()}")
+        mask = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
+        mask[env_ids] = True
+        return mask
+
     def reset(self, env_ids: torch.Tensor | list[int] | None = None) -> SimState:
         """Re-initialise some envs (all if ``None``); their graph history is dropped."""
         if env_ids is None:
-            mask = torch.ones(self.num_envs, dtype=torch.bool, device=self.device)
+            self._state = self._initial_state()
         else:
-            env_ids = torch.as_tensor(env_ids, dtype=torch.long, device=self.device)
-            if env_ids.numel() == 0:
-                return self._state
-            if env_ids.min() < 0 or env_ids.max() >= self.num_envs:
-                raise IndexError(f"env ids must lie in [0, {self.num_envs}), got {env_ids.tolist()}")
-            mask = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
-            mask[env_ids] = True
-        fresh = self._initial_state()
-        self._state = self._state.select(mask, fresh)
+            mask = self._env_mask(env_ids)
+            if mask.any():
+                self._state = self._state.select(mask, self._initial_state())
         return self._state
 
     def cut_graph(self, env_ids: torch.Tensor | list[int] | None = None) -> SimState:
@@ -234,9 +236,7 @@ class BatchedSim(ABC):
         if env_ids is None:
             self._state = self._state.detach()
         else:
-            mask = torch.zeros(self.num_envs, dtype=torch.bool, device=self.device)
-            mask[torch.as_tensor(env_ids, dtype=torch.long, device=self.device)] = True
-            self._state = self._state.select(mask, self._state.detach())
+            self._state = self._state.select(self._env_mask(env_ids), self._state.detach())
         return self._state
 
     def validate_actions(self, actions: torch.Tensor) -> torch.Tensor:

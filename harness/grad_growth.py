@@ -45,7 +45,7 @@ def grad_growth(run: str | Path, variants: list[str], windows: int = 3, seed: in
 
     run = Path(run)
     config = json.loads((run / "config.json").read_text())
-    algo_cfg = AlgoConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in config["algo"].items()})
+    algo_cfg = AlgoConfig.from_dict(config["algo"])
     n, h = algo_cfg.num_envs, algo_cfg.horizon
     task = make_task(config["task"], PhysicsSpec(**config.get("physics", {})))
     torch.manual_seed(seed)

@@ -147,27 +147,28 @@ def train(
     if resume:
         if not config_path.exists() or not ckpt_path.exists():
             raise RunError(f"cannot resume {run_dir}: no config.json/checkpoint.pt there")
-        saved = json.loads(config_path.read_text())
-        task, backend, seed, device = saved["task"], saved["backend"], saved["seed"], saved["device"]
-        algo_config = AlgoConfig(**{**saved["algo"], "actor_hidden": tuple(saved["algo"]["actor_hidden"])})
-        epochs = max(epochs, saved["epochs"]) if epochs else saved["epochs"]
+        config = json.loads(config_path.read_text())
+        task, backend, seed, device = config["task"], config["backend"], config["seed"], config["device"]
+        algo_config = AlgoConfig.from_dict(config["algo"])
+        config["epochs"] = epochs = max(epochs, config["epochs"]) if epochs else config["epochs"]
+        config.setdefault("resumed", []).append(provenance(command))  # the original command stays
     elif config_path.exists():
         raise RunError(f"{run_dir} already holds a run; pass --resume to continue it or choose another --out")
-    algo_config = dataclasses.replace(algo_config, max_epochs=algo_config.max_epochs or epochs).validate()
-    cfg_dict = dataclasses.asdict(algo_config)
-    config = {
-        "task": task,
-        "backend": backend,
-        "seed": seed,
-        "device": device,
-        "epochs": epochs,
-        "algo": cfg_dict,
-        "provenance": provenance(command),
-    }
+    else:
+        algo_config = dataclasses.replace(algo_config, max_epochs=algo_config.max_epochs or epochs).validate()
+        config = {
+            "task": task,
+            "backend": backend,
+            "seed": seed,
+            "device": device,
+            "epochs": epochs,
+            "algo": dataclasses.asdict(algo_config),
+            "provenance": provenance(command),
+        }
     torch.manual_seed(seed)
     random.seed(seed)
     env = _make_env(task, backend, algo_config.num_envs, device, seed, algo_config.horizon)
-    config["physics"] = dataclasses.asdict(env.task.physics)
+    config.setdefault("physics", dataclasses.asdict(env.task.physics))
     run_dir.mkdir(parents=True, exist_ok=True)
     write_json(config_path, config)
     algo = FirstOrderActorCritic(algo_config, env.obs_dim, env.action_dim)
@@ -233,7 +234,7 @@ def evaluate(
     """Deterministic-policy returns of the first episode of every env, over ``seeds`` eval seeds."""
     run_dir = Path(run_dir)
     config = json.loads((run_dir / "config.json").read_text())
-    cfg = AlgoConfig(**{**config["algo"], "actor_hidden": tuple(config["algo"]["actor_hidden"])})
+    cfg = AlgoConfig.from_dict(config["algo"])
     n = num_envs or 2 * cfg.num_envs
     results = {}
     for name in (INIT_CHECKPOINT, checkpoint):
