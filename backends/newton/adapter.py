@@ -120,7 +120,12 @@ class NewtonSim(BatchedSim):
             if fmt == "mjcf":
                 builder.add_mjcf(path, enable_self_collisions=False, parse_visuals=False)
             elif fmt == "urdf":
-                builder.add_urdf(path, floating=self.task.layout.floating_base, enable_self_collisions=False)
+                builder.add_urdf(
+                    path,
+                    floating=self.task.layout.floating_base,
+                    enable_self_collisions=False,
+                    collapse_fixed_joints=True,  # rotor and foot links: fixed, tiny, stiff as penalty joints
+                )
             else:
                 raise BackendError(f"the newton adapter cannot load {fmt!r} assets yet")
         except BackendError:
