@@ -160,6 +160,8 @@ class BatchedSim(ABC):
 
     #: registry name of the adapter, set by subclasses
     name: str = ""
+    #: the task the contract test suite (tests/test_contract.py) runs this adapter on
+    contract_task: str = "ant"
 
     def __init__(self, task: Task, num_envs: int, device: str = "cpu", seed: int = 0, **options):
         if num_envs < 1:

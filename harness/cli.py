@@ -175,20 +175,20 @@ def _make_sim(args, **options):
 
 def _validate_names(args) -> None:
     import backends
-    from tasks import TASKS
+    import tasks
 
     if args.backend not in backends.available():
         raise BadInput(f"unknown backend {args.backend!r}; choose from: {', '.join(backends.available())}")
-    if args.task not in TASKS:
-        raise BadInput(f"unknown task {args.task!r}; choose from: {', '.join(sorted(TASKS))}")
+    if args.task not in tasks.available():
+        raise BadInput(f"unknown task {args.task!r}; choose from: {', '.join(tasks.available())}")
 
 
 def cmd_list(args) -> int:
     import backends
-    from tasks import TASKS
+    import tasks
 
     print("backends: " + ", ".join(backends.available()))
-    print("tasks:    " + ", ".join(sorted(TASKS)))
+    print("tasks:    " + ", ".join(tasks.available()))
     return 0
 
 

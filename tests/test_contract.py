@@ -1,0 +1,139 @@
+"""The contract every registered adapter must pass, parametrised over the registry.
+
+An adapter is found through the ``diffsim_bench.backends`` entry points (built-in or plugged in)
+and runs on its ``contract_task``. Checked: shapes and dtypes of the backend-neutral state,
+seeding and determinism, reset and graph-cut semantics, gradients against finite differences
+on a smooth segment, per-env NaN reporting, and refusal of bad actions before the engine.
+"""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+import backends
+from backends import InvalidActionError, NonFiniteStateError
+from harness.gradcheck import DEFAULT_TOLERANCE, gradcheck
+from tasks import make_task
+
+BACKENDS = backends.available()
+N = 3
+
+
+def test_the_builtin_adapters_are_registered():
+    assert "newton" in BACKENDS
+
+
+def test_the_third_party_plugin_is_registered_without_editing_this_repo():
+    """tests/plugins/diffsim_pointmass is its own package (tox installs it beside ours)."""
+    if "pointmass" not in BACKENDS:
+        pytest.skip("the test plugin is not installed here (tox -e py installs it)")
+    import tasks
+
+    assert "pointmass" in tasks.available()
+    assert backends.get("pointmass").__module__.startswith("diffsim_pointmass")
+
+
+@pytest.fixture(scope="module", params=BACKENDS)
+def adapter(request):
+    cls = backends.get(request.param)
+    task = make_task(cls.contract_task)
+    return cls, task
+
+
+def _sim(adapter, num_envs=N, seed=0):
+    cls, task = adapter
+    return cls(task, num_envs=num_envs, seed=seed, max_graph_steps=32)
+
+
+def _actions(task, n, gen, grad=False):
+    return (0.5 * (2 * torch.rand(n, task.action_dim, generator=gen) - 1)).requires_grad_(grad)
+
+
+def test_state_shapes_and_dtypes(adapter):
+    sim = _sim(adapter)
+    layout = sim.layout
+    assert layout == adapter[1].layout
+    with torch.no_grad():
+        state = sim.step(torch.zeros(N, adapter[1].action_dim))
+    assert state.joint_q.shape == (N, layout.nq) and state.joint_qd.shape == (N, layout.nv)
+    assert state.engine.dim() == 2 and state.engine.shape[0] == N
+    for value in state.tensors().values():
+        assert value.dtype == torch.float32 and value.device == sim.device
+    assert state.dof_q(layout).shape == (N, layout.num_dofs)
+
+
+def test_seeding_and_determinism(adapter):
+    task = adapter[1]
+    runs = []
+    for _ in range(2):
+        sim = _sim(adapter, seed=5)
+        gen = torch.Generator().manual_seed(0)
+        with torch.no_grad():
+            for _ in range(3):
+                sim.step(_actions(task, N, gen))
+        runs.append(sim.state.joint_q)
+    assert torch.equal(runs[0], runs[1])
+    assert not torch.equal(_sim(adapter, seed=5).state.joint_q, _sim(adapter, seed=6).state.joint_q)
+
+
+def test_reset_touches_only_the_named_envs_and_cuts_only_their_graph(adapter):
+    task = adapter[1]
+    sim = _sim(adapter)
+    gen = torch.Generator().manual_seed(1)
+    first = _actions(task, N, gen, grad=True)
+    sim.step(first)
+    before = sim.state.joint_q.detach().clone()
+    sim.reset([1])
+    after = sim.state.joint_q.detach()
+    assert torch.equal(after[[0, 2]], before[[0, 2]]) and not torch.equal(after[1], before[1])
+    state = sim.step(_actions(task, N, gen))
+    (state.joint_q.sum() + state.joint_qd.sum()).backward()
+    per_env = first.grad.abs().sum(dim=1)
+    assert per_env[1] == 0 and per_env[0] > 0 and per_env[2] > 0
+
+
+def test_window_cut_leaves_no_path(adapter):
+    task = adapter[1]
+    sim = _sim(adapter)
+    gen = torch.Generator().manual_seed(2)
+    before = _actions(task, N, gen, grad=True)
+    sim.step(before)
+    sim.cut_graph()
+    after = _actions(task, N, gen, grad=True)
+    state = sim.step(after)
+    g_before, g_after = torch.autograd.grad(state.joint_qd.sum(), (before, after), allow_unused=True)
+    assert g_before is None and g_after.abs().sum() > 0
+
+
+def test_gradients_match_finite_differences_on_a_smooth_segment(adapter):
+    sim = _sim(adapter, num_envs=2, seed=1)
+    result = gradcheck(sim, steps=4, seed=0, start_height=2.0 if sim.layout.floating_base else None)
+    assert result.action_rel_error < DEFAULT_TOLERANCE, result
+    assert result.state_rel_error < DEFAULT_TOLERANCE, result
+
+
+def test_non_finite_simulation_is_reported_per_env(adapter):
+    task = adapter[1]
+    sim = _sim(adapter)
+    q, qd = task.sample_initial_state(N, torch.Generator().manual_seed(0))
+    qd[1] = float("inf")
+    sim.state = sim.state_from_generalized(q, qd)
+    with pytest.raises(NonFiniteStateError) as info, torch.no_grad():
+        sim.step(torch.zeros(N, task.action_dim))
+    assert info.value.env_ids == [1]
+
+
+@pytest.mark.parametrize("kind", ["shape", "dtype", "nan", "inf"])
+def test_bad_actions_are_refused(adapter, kind):
+    task = adapter[1]
+    sim = _sim(adapter)
+    actions = torch.zeros(N, task.action_dim)
+    if kind == "shape":
+        actions = torch.zeros(N, task.action_dim + 1)
+    elif kind == "dtype":
+        actions = actions.long()
+    else:
+        actions[2, 0] = float(kind)
+    with pytest.raises(InvalidActionError):
+        sim.step(actions)
