@@ -321,7 +321,7 @@ class FirstOrderActorCritic(nn.Module):
             critic_loss=critic_loss,
             critic_updates_skipped=critic_skipped,
             lambda_loss=lambda_loss,
-            lam=float(self.lam),
+            lam=float(self.lam.detach()),
             alpha=self.alpha,
             entropy=entropy,
             finished_episodes=len(w.finished_returns),
