@@ -31,3 +31,23 @@ def quat_from_angle_axis(angle: torch.Tensor, axis: torch.Tensor) -> torch.Tenso
     """Quaternions for rotations by ``angle`` (...,) about unit ``axis`` (..., 3)."""
     half = 0.5 * angle.unsqueeze(-1)
     return torch.cat((axis * torch.sin(half), torch.cos(half)), dim=-1)
+
+
+def quat_conjugate(q: torch.Tensor) -> torch.Tensor:
+    """Inverse of unit quaternions ``q`` (..., 4)."""
+    return torch.cat((-q[..., :3], q[..., 3:]), dim=-1)
+
+
+def quat_from_rotation_vector(rotvec: torch.Tensor) -> torch.Tensor:
+    """Unit quaternions for rotation vectors (..., 3) (axis * angle); zero maps to the identity."""
+    angle = rotvec.norm(dim=-1)
+    axis = rotvec / angle.clamp_min(1e-30).unsqueeze(-1)
+    return quat_from_angle_axis(angle, axis)
+
+
+def xyzw_to_wxyz(q: torch.Tensor) -> torch.Tensor:
+    return torch.cat((q[..., 3:], q[..., :3]), dim=-1)
+
+
+def wxyz_to_xyzw(q: torch.Tensor) -> torch.Tensor:
+    return torch.cat((q[..., 1:], q[..., :1]), dim=-1)

@@ -1,0 +1,386 @@
+"""MuJoCo-Warp adapter: MuJoCo's dynamics batched on Warp, gradients from batched finite differences.
+
+MuJoCo-Warp 4.0 compiles its kernels without backward passes, so there is no tape to replay.
+Gradients here are honest central finite differences of one control step, computed for every
+env at once in one large batch of worlds and chained by torch autograd (a vector-Jacobian
+product per step).
+
+Model (:func:`build_spec`): the task's MJCF through ``mujoco.MjSpec``, plus a z-up ground plane
+(the asset has none). The MJCF's motors are removed: joint torques enter as ``qfrc_applied`` on the
+hinge dofs, so nothing is applied twice. Timestep ``physics.sim_dt`` (1/960 s) with ``physics.substeps``
+(16) MuJoCo steps per control step, Euler integrator (MuJoCo's default; joint damping implicit).
+Friction ``physics.contact_mu`` on every geom and the plane; joint damping ``physics.joint_damping``
+on the hinges; armature and ranges from the MJCF. Self-collisions are off (``contype``/``conaffinity``),
+as in the Newton adapter: only geom-ground contacts exist.
+
+Contact models differ between engines. MuJoCo's contacts and joint limits are soft *constraints*
+solved each step, with a pyramidal friction cone; Newton's are penalty springs. The task's penalty
+constants (``contact_ke/kd/kf``, ``joint_limit_ke/kd``) have no MuJoCo counterpart and are not used
+here. ``solref`` keeps MuJoCo's default (0.02 s, 1): a critically damped response with a 20 ms
+time constant, ~19 substeps, comfortably resolved by the integrator (MuJoCo asks for at least 2
+timesteps). MuJoCo also honours the armature (0.05), which Newton's semi-implicit solver ignores.
+
+Engine state (N, D), D = nq + nv = 29 for the Ant: MuJoCo's ``qpos`` (root position, root
+quaternion w-x-y-z, hinges) and ``qvel`` (root linear velocity of the body origin in the world
+frame, root angular velocity in the *body* frame, hinge velocities). The backend-neutral fields
+are computed from it in torch (differentiable): quaternion reordered to x-y-z-w, angular velocity
+rotated to the world frame, linear velocity moved to the root's centre of mass
+(``v_com = v_origin + w_world x R c`` with ``c = body_ipos`` of the root).
+:meth:`MujocoWarpSim.state_from_generalized` does the inverse (normalising the quaternion).
+
+One control step is a pure function of (qpos, qvel, torque): ``qacc_warmstart`` (the constraint
+solver's warm start, MuJoCo's only other carried state here) is zeroed at the start of each
+control step and carried only across its substeps.
+
+Gradients (:meth:`MujocoWarpSim.fd_jacobians`, :class:`_MujocoWarpStep`):
+
+* Tangent coordinates per env: 2 * nv = 28 state coordinates (root position, root rotation,
+  hinges, all of qvel) and nu = 8 torques. The rotation is perturbed on the manifold,
+  ``q' = q * exp(delta / 2)`` with ``delta`` a body-frame rotation vector (MuJoCo's own tangent
+  convention, that of ``mj_integratePos`` and ``mjd_transitionFD``); everything else additively.
+* One batch of ``1 + 2 * (2 nv + nu)`` = 73 worlds per env (nominal, +eps and -eps for each
+  coordinate) runs through the same ``substeps`` ``mujoco_warp.step`` calls. The nominal world is
+  the forward result (bit-identical to the no-grad path); central differences of the others give
+  per-env Jacobians of the next engine state (ambient, D rows) w.r.t. the tangent state (2 nv
+  columns) and the torques (nu columns).
+* Backward is a vector-Jacobian product. Tangent gradients map to the ambient input as follows:
+  identity for positions, hinges and velocities; for the quaternion, MuJoCo normalises ``q``
+  before use, so the step depends on ``q`` only through ``q^ = q / |q|`` and, to first order,
+  ``delta = 2 Im(conj(q^) * dq) / |q|`` (the radial part of ``dq`` gives ``delta = 0``). Hence
+  ``dL/dq = (2 / |q|) E(conj(q^))^T dL/d delta`` where ``E(p) r = Im(p * r)``; the gradient
+  along ``q`` itself is zero.
+* Steps: ``fd_eps_state`` = 1e-2 (metres, radians, m/s, rad/s) and ``fd_eps_control`` = 1 N m
+  (torques reach 200 N m), chosen by measurement: per-step Jacobians on contact-free states
+  (8 Ants in the air) against MuJoCo's own float64 C finite differences (``mjd_transitionFD``,
+  chained over the 16 substeps, gear-1 motors standing in for ``qfrc_applied``), relative
+  Frobenius error, max over envs:
+
+  ====================  =======  =======  =======  =======  =======  =======  =======
+  fd_eps_state          3e-2     2e-2     1e-2     5e-3     3e-3     1e-3     1e-4
+  state Jacobian        1.5e-4   7.2e-5   5.9e-5   9.3e-5   1.5e-4   5.4e-4   5.2e-3
+  fd_eps_control (N m)  30       10       3        1        0.3      0.1      0.01
+  torque Jacobian       4.8e-6   2.5e-6   9.9e-6   4.0e-5   9.1e-5   3.0e-4   2.4e-3
+  ====================  =======  =======  =======  =======  =======  =======  =======
+
+  Smaller steps lose digits to float32 round-off, larger state steps to curvature. The torque
+  column keeps improving up to 10 N m because one control step is nearly affine in the torque;
+  1 N m is taken instead because it moves the joint velocities by ~0.015 rad/s, the same size as
+  the state step, so both probe the same neighbourhood when contacts make the step rough.
+* Cost: 73 worlds per env for a step with grad, 1 without; on the 2-core CPU, a control step
+  takes ~0.1 s without grad for 2 to 64 envs (kernel-launch bound) and, forward + backward,
+  ~0.15 s for 2 envs and 2 to 2.7 s for 64 envs (4672 worlds). ``fd_chunk_envs`` (default: all envs)
+  bounds how many envs share one batch, i.e. memory, without changing the result.
+
+Contacts make a control step non-smooth. With MuJoCo's soft contacts, the constraint's damping
+term acts from the first substep in which a geom penetrates, so the next state jumps whenever the
+touchdown moves to another substep: along the approach direction about every ``v * sim_dt``
+(~1 mm at 1 m/s), with jumps of ~0.3 rad/s in joint velocity in our scans. A step of 1e-2 averages
+over several of these jumps (a smoothed, secant gradient); the local derivative between jumps,
+which finite differences of a whole rollout with tiny action steps see, ignores them. The two
+disagree by ~30% on ``gradcheck --with-contact`` (reported, not asserted), and no step size fixes
+that: steps of 1e-3 / 0.1 N m and 1e-4 / 0.01 N m give max errors of 0.27 and 0.86.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import torch
+import warp as wp
+
+wp.config.quiet = True  # no per-module compile lines
+wp.config.log_level = wp.LOG_WARNING  # no start-up banner; warnings still show
+
+import mujoco_warp as mjw  # noqa: E402
+
+from backends.contract import BackendError, BatchedSim, ControlKind, SimState, StateLayout  # noqa: E402
+from tasks.rotations import (  # noqa: E402
+    quat_conjugate,
+    quat_from_rotation_vector,
+    quat_mul,
+    quat_rotate,
+    wxyz_to_xyzw,
+    xyzw_to_wxyz,
+)
+
+_ROOT_Q = 7  # free joint: position (3) + quaternion w, x, y, z (4)
+_ROOT_V = 6  # free joint: linear velocity (3, world frame) + angular velocity (3, body frame)
+
+
+def _warp_device(device: torch.device) -> str:
+    if device.type == "cpu":
+        return "cpu"
+    return f"cuda:{device.index or 0}"
+
+
+def build_spec(task) -> mujoco.MjSpec:
+    """The task's MJCF as an ``MjSpec`` set up for this adapter (see the module docstring).
+
+    Returned uncompiled so tests can build variants of exactly this model (e.g. with gear-1 motors).
+    """
+    phys = task.physics
+    if task.asset_format != "mjcf":
+        raise BackendError(f"the mujoco_warp adapter cannot load {task.asset_format!r} assets yet")
+    try:
+        spec = mujoco.MjSpec.from_file(str(task.asset_path))
+    except Exception as exc:  # the parser raises assorted types for malformed files
+        raise BackendError(f"cannot load mjcf asset {task.asset_path}: {exc}") from exc
+    spec.option.timestep = phys.sim_dt
+    spec.option.gravity = [0.0, 0.0, phys.gravity]
+    for actuator in list(spec.actuators):  # torques go through qfrc_applied instead
+        spec.delete(actuator)
+    for geom in spec.geoms:
+        geom.friction[0] = phys.contact_mu
+        geom.contype, geom.conaffinity = 1, 0  # collide with the ground only, never with each other
+    for joint in spec.joints:
+        if joint.type == mujoco.mjtJoint.mjJNT_HINGE:
+            joint.damping[0] = phys.joint_damping
+    if phys.ground_plane:
+        spec.worldbody.add_geom(
+            name="ground",
+            type=mujoco.mjtGeom.mjGEOM_PLANE,
+            size=[0.0, 0.0, 1.0],  # infinite plane through the origin, normal +z
+            friction=[phys.contact_mu, 0.005, 0.0001],
+            contype=0,
+            conaffinity=1,
+        )
+    return spec
+
+
+class MujocoWarpSim(BatchedSim):
+    """A task on MuJoCo-Warp with finite-difference gradients; see the module docstring.
+
+    Options: ``fd_eps_state`` (default 1e-2) and ``fd_eps_control`` (default 1.0 N m) central-difference
+    steps; ``fd_chunk_envs`` (default: all envs) envs per finite-difference batch; ``nconmax`` (default
+    32) contacts and ``njmax`` (default 160) constraint rows per world (the Ant's 13 geoms on the plane
+    make at most 25 contacts, 4 rows each in the pyramidal cone, plus 8 joint-limit rows; an overflow
+    raises :class:`BackendError`). Other options (the harness's ``max_graph_steps``) are ignored:
+    the Jacobians live in the autograd graph, so there is no buffer ring to size.
+    """
+
+    name = "mujoco_warp"
+
+    # -- construction ---------------------------------------------------------------------
+    def _build(self) -> None:
+        task = self.task
+        if task.control_kind != ControlKind.JOINT_TORQUE:
+            raise BackendError(f"control kind {task.control_kind.value!r} is not supported by mujoco_warp yet")
+        if not task.layout.floating_base or task.layout.num_particles:
+            raise BackendError("the mujoco_warp adapter supports floating-base tasks without particles only")
+        self.fd_eps_state = float(self.options.get("fd_eps_state", 1e-2))
+        self.fd_eps_control = float(self.options.get("fd_eps_control", 1.0))
+        self.fd_chunk_envs = int(self.options.get("fd_chunk_envs", self.num_envs))
+        self.nconmax = int(self.options.get("nconmax", 32))
+        self.njmax = int(self.options.get("njmax", 160))
+        if not (self.fd_eps_state > 0 and self.fd_eps_control > 0):
+            raise ValueError("fd_eps_state and fd_eps_control must be positive")
+        if self.fd_chunk_envs < 1 or self.nconmax < 1 or self.njmax < 1:
+            raise ValueError("fd_chunk_envs, nconmax and njmax must be >= 1")
+        self.wp_device = _warp_device(self.device)
+
+        self.mjm = build_spec(task).compile()
+        layout = task.layout
+        root_is_free = self.mjm.njnt > 0 and self.mjm.jnt_type[0] == mujoco.mjtJoint.mjJNT_FREE
+        if not root_is_free or self.mjm.nq != layout.nq or self.mjm.nv != layout.nv:
+            raise BackendError(
+                f"asset {task.asset_path.name} has nq={self.mjm.nq}, nv={self.mjm.nv} (free root: {root_is_free}); "
+                f"task {task.name!r} expects a free root, nq={layout.nq}, nv={layout.nv}"
+            )
+        root_body = int(self.mjm.jnt_bodyid[0])
+        self._com_offset = torch.tensor(self.mjm.body_ipos[root_body], dtype=torch.float32, device=self.device)
+        with wp.ScopedDevice(self.wp_device):
+            self.model = mjw.put_model(self.mjm)
+        self._data: dict[int, tuple[mjw.Data, dict[str, torch.Tensor]]] = {}
+
+        # central-difference step of every tangent coordinate: 2 nv state coordinates, then the torques
+        eps = [self.fd_eps_state] * (2 * layout.nv) + [self.fd_eps_control] * layout.num_dofs
+        self._fd_steps = torch.tensor(eps, dtype=torch.float64, device=self.device)
+
+    @property
+    def layout(self) -> StateLayout:
+        return self.task.layout
+
+    @property
+    def worlds_per_env_with_grad(self) -> int:
+        """Worlds one env costs in a step with grad: nominal plus +/- every tangent coordinate."""
+        return 1 + 2 * self._fd_steps.numel()
+
+    def _data_for(self, nworld: int) -> tuple[mjw.Data, dict[str, torch.Tensor]]:
+        """A Warp ``Data`` with ``nworld`` worlds (cached) and torch views of the arrays we set and read."""
+        if nworld not in self._data:
+            with wp.ScopedDevice(self.wp_device):
+                data = mjw.make_data(self.mjm, nworld=nworld, nconmax=self.nconmax, njmax=self.njmax)
+            names = ("qpos", "qvel", "qfrc_applied", "qacc_warmstart", "time", "overflow")
+            self._data[nworld] = (data, {k: wp.to_torch(getattr(data, k)) for k in names})
+        return self._data[nworld]
+
+    # -- simulation -----------------------------------------------------------------------
+    def _run_worlds(self, qpos: torch.Tensor, qvel: torch.Tensor, torque: torch.Tensor) -> torch.Tensor:
+        """One control step of ``W`` independent worlds: (W, nq), (W, nv), (W, J) -> next engine (W, D)."""
+        data, view = self._data_for(qpos.shape[0])
+        root = self.layout.nv - self.layout.num_dofs
+        view["qpos"].copy_(qpos)
+        view["qvel"].copy_(qvel)
+        view["qfrc_applied"][:, :root] = 0.0
+        view["qfrc_applied"][:, root:] = torque
+        view["qacc_warmstart"].zero_()
+        view["time"].zero_()
+        view["overflow"].zero_()
+        with wp.ScopedDevice(self.wp_device):
+            for _ in range(self.task.physics.substeps):
+                mjw.step(self.model, data)
+            wp.synchronize_device(self.wp_device)
+        if bool(view["overflow"].any()):
+            raise BackendError(
+                f"mujoco_warp ran out of contact or constraint buffers (nconmax={self.nconmax}, "
+                f"njmax={self.njmax}); raise the nconmax / njmax options"
+            )
+        return torch.cat((view["qpos"], view["qvel"]), dim=1).clone()
+
+    def _split(self, engine: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return engine[:, : self.layout.nq], engine[:, self.layout.nq :]
+
+    def _check_control(self, control: torch.Tensor) -> torch.Tensor:
+        expected = (self.num_envs, self.layout.num_dofs)
+        if tuple(control.shape) != expected:
+            raise BackendError(f"control must have shape {expected}, got {tuple(control.shape)}")
+        return control.to(self.device, torch.float32)
+
+    def simulate(self, state: SimState, control: torch.Tensor) -> SimState:
+        control = self._check_control(control)
+        if torch.is_grad_enabled() and (state.engine.requires_grad or control.requires_grad):
+            engine = _MujocoWarpStep.apply(self, state.engine, control)
+        else:
+            qpos, qvel = self._split(state.engine.detach())
+            engine = self._run_worlds(qpos, qvel, control.detach())
+        return self._state_from_engine(engine)
+
+    def fd_jacobians(
+        self, engine: torch.Tensor, control: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Next engine state and its central-difference Jacobians, for every env.
+
+        Returns ``next_engine`` (N, D) float32, ``jac_state`` (N, D, 2 nv) and ``jac_control``
+        (N, D, J), both float64: derivatives of the ambient next state w.r.t. the tangent state
+        (see the module docstring for the rotation's convention) and the torques.
+        """
+        engine = engine.detach().to(self.device, torch.float64)
+        control = control.detach().to(self.device, torch.float64)
+        steps = self._fd_steps
+        num_coords = steps.numel()
+        # row 0: nominal; rows 1..P: +eps e_i; rows P+1..2P: -eps e_i (P tangent coordinates)
+        deltas = torch.cat((steps.new_zeros(1, num_coords), torch.diag(steps), -torch.diag(steps)))
+        outputs, jac = [], []
+        for start in range(0, engine.shape[0], self.fd_chunk_envs):
+            e = engine[start : start + self.fd_chunk_envs]
+            u = control[start : start + self.fd_chunk_envs]
+            qpos, qvel, torque = self._retract(e, u, deltas)  # (K * n, .) worlds, perturbation-major
+            y = self._run_worlds(qpos.float(), qvel.float(), torque.float()).double()
+            y = y.reshape(deltas.shape[0], e.shape[0], -1)
+            diff = (y[1 : 1 + num_coords] - y[1 + num_coords :]) / (2.0 * steps[:, None, None])
+            outputs.append(y[0].float())
+            jac.append(diff.permute(1, 2, 0))  # (n, D, P)
+        jac = torch.cat(jac)
+        nt = 2 * self.layout.nv
+        return torch.cat(outputs), jac[:, :, :nt].contiguous(), jac[:, :, nt:].contiguous()
+
+    def _retract(self, engine: torch.Tensor, control: torch.Tensor, deltas: torch.Tensor):
+        """Inputs of ``K x n`` worlds: every env's state and torque moved by each tangent vector in ``deltas`` (K, P).
+
+        Positions, hinges, velocities and torques move additively; the root quaternion by a
+        body-frame rotation, ``q * exp(delta_rot / 2)``.
+        """
+        layout = self.layout
+        qpos, qvel = self._split(engine)
+        d = deltas[:, None, :]  # (K, 1, P) against (1, n, .) nominal
+        nv = layout.nv
+        pos = qpos[None, :, 0:3] + d[..., 0:3]
+        turn = quat_from_rotation_vector(d[..., 3:6])  # body-frame rotation: q' = q * exp(delta / 2)
+        quat = xyzw_to_wxyz(quat_mul(wxyz_to_xyzw(qpos[None, :, 3:7]), turn))
+        hinges = qpos[None, :, _ROOT_Q:] + d[..., _ROOT_V:nv]
+        vel = qvel[None] + d[..., nv : 2 * nv]
+        torque = control[None] + d[..., 2 * nv :]
+        worlds = (deltas.shape[0], engine.shape[0])
+
+        def flat(*parts: torch.Tensor) -> torch.Tensor:  # (K, n, .) pieces -> (K * n, widths), perturbation-major
+            return torch.cat([p.expand(*worlds, p.shape[-1]) for p in parts], dim=-1).flatten(0, 1)
+
+        return flat(pos, quat, hinges), flat(vel), flat(torque)
+
+    def tangent_to_ambient_grad(self, engine: torch.Tensor, grad_tangent: torch.Tensor) -> torch.Tensor:
+        """Gradient w.r.t. the engine state (N, D) from the gradient w.r.t. its tangent coordinates (N, 2 nv).
+
+        Identity except for the root rotation: ``dL/dq = (2 / |q|) E(conj(q^))^T dL/d delta``
+        (module docstring); orthogonal to ``q`` because the step ignores ``|q|``.
+        """
+        quat = engine[:, 3:7].to(grad_tangent.dtype)
+        norm = quat.norm(dim=1, keepdim=True)
+        w, v = quat[:, :1] / norm, quat[:, 1:] / norm
+        g_rot = grad_tangent[:, 3:6]
+        g_w = -(v * g_rot).sum(dim=1, keepdim=True)
+        g_v = w * g_rot + torch.linalg.cross(v, g_rot, dim=1)
+        g_quat = 2.0 / norm * torch.cat((g_w, g_v), dim=1)
+        return torch.cat((grad_tangent[:, 0:3], g_quat, grad_tangent[:, _ROOT_V:]), dim=1)
+
+    # -- engine <-> backend-neutral coordinates ---------------------------------------------
+    def _state_from_engine(self, engine: torch.Tensor) -> SimState:
+        joint_q, joint_qd = engine_to_generalized(engine, self._com_offset)
+        return SimState(joint_q=joint_q, joint_qd=joint_qd, engine=engine)
+
+    def state_from_generalized(self, joint_q, joint_qd, particle_q=None, particle_qd=None) -> SimState:
+        """The engine state of generalized coordinates (root quaternion normalised); differentiable."""
+        if particle_q is not None or particle_qd is not None:
+            raise BackendError("particles are not supported by the mujoco_warp adapter")
+        joint_q = joint_q.to(self.device, torch.float32)
+        joint_qd = joint_qd.to(self.device, torch.float32)
+        return self._state_from_engine(generalized_to_engine(joint_q, joint_qd, self._com_offset))
+
+
+def engine_to_generalized(engine: torch.Tensor, com_offset: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Neutral ``joint_q``, ``joint_qd`` from MuJoCo's (qpos, qvel) rows of a free-root model, in torch.
+
+    ``com_offset`` (3,) is the root body's centre of mass in its own frame (``body_ipos``).
+    """
+    nv = (engine.shape[1] - 1) // 2  # D = nq + nv, and nq = nv + 1 with a free root
+    qpos, qvel = engine[:, :-nv], engine[:, -nv:]
+    quat = wxyz_to_xyzw(qpos[:, 3:7])
+    ang_world = quat_rotate(quat, qvel[:, 3:6])
+    com_arm = quat_rotate(quat, com_offset.to(engine).expand(engine.shape[0], 3))
+    lin_com = qvel[:, 0:3] + torch.linalg.cross(ang_world, com_arm, dim=1)
+    joint_q = torch.cat((qpos[:, 0:3], quat, qpos[:, _ROOT_Q:]), dim=1)
+    joint_qd = torch.cat((lin_com, ang_world, qvel[:, _ROOT_V:]), dim=1)
+    return joint_q, joint_qd
+
+
+def generalized_to_engine(joint_q: torch.Tensor, joint_qd: torch.Tensor, com_offset: torch.Tensor) -> torch.Tensor:
+    """The inverse of :func:`engine_to_generalized`; the root quaternion is normalised on the way."""
+    quat = torch.nn.functional.normalize(joint_q[:, 3:7], dim=1)  # x, y, z, w
+    ang_world = joint_qd[:, 3:6]
+    ang_body = quat_rotate(quat_conjugate(quat), ang_world)
+    com_arm = quat_rotate(quat, com_offset.to(joint_q).expand(joint_q.shape[0], 3))
+    lin_origin = joint_qd[:, 0:3] - torch.linalg.cross(ang_world, com_arm, dim=1)
+    qpos = torch.cat((joint_q[:, 0:3], xyzw_to_wxyz(quat), joint_q[:, _ROOT_Q:]), dim=1)
+    qvel = torch.cat((lin_origin, ang_body, joint_qd[:, _ROOT_V:]), dim=1)
+    return torch.cat((qpos, qvel), dim=1)
+
+
+class _MujocoWarpStep(torch.autograd.Function):
+    """(engine state, torques) -> next engine state; backward is the finite-difference Jacobians' VJP."""
+
+    @staticmethod
+    def forward(ctx, sim: MujocoWarpSim, engine: torch.Tensor, control: torch.Tensor):
+        next_engine, jac_state, jac_control = sim.fd_jacobians(engine, control)
+        ctx.sim = sim
+        ctx.save_for_backward(engine.detach(), jac_state, jac_control)
+        return next_engine
+
+    @staticmethod
+    def backward(ctx, grad_next):
+        engine, jac_state, jac_control = ctx.saved_tensors
+        g = grad_next.to(torch.float64).unsqueeze(1)  # (N, 1, D)
+        grad_tangent = (g @ jac_state).squeeze(1)
+        grad_control = (g @ jac_control).squeeze(1)
+        grad_engine = ctx.sim.tangent_to_ambient_grad(engine, grad_tangent)
+        return None, grad_engine.to(grad_next.dtype), grad_control.to(grad_next.dtype)
+
+
+__all__ = ["MujocoWarpSim", "build_spec", "engine_to_generalized", "generalized_to_engine"]

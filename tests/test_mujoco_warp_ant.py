@@ -1,0 +1,294 @@
+"""The MuJoCo-Warp adapter on the Ant: state layout, finite-difference gradients, stability, determinism.
+
+Sims are module-scoped (Warp compiles MuJoCo-Warp's kernels once per process) and small: each
+MuJoCo-Warp step costs ~100 kernel launches per substep, whatever the number of worlds.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+mujoco = pytest.importorskip("mujoco")
+pytest.importorskip("mujoco_warp")
+
+from backends import BackendError, ControlKind, InvalidActionError, NonFiniteStateError, make  # noqa: E402
+from backends.mujoco_warp import MujocoWarpSim, build_spec, engine_to_generalized, generalized_to_engine  # noqa: E402
+from harness.gradcheck import DEFAULT_TOLERANCE, gradcheck  # noqa: E402
+from tasks import make_task  # noqa: E402
+from tasks.rotations import quat_from_angle_axis, quat_mul  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def ant():
+    return make_task("ant")
+
+
+@pytest.fixture(scope="module")
+def sim(ant):
+    return make("mujoco_warp", ant, num_envs=2, seed=1)
+
+
+def _actions(n, gen, grad=False):
+    a = 2.0 * torch.rand(n, 8, generator=gen) - 1.0
+    return a.requires_grad_(grad)
+
+
+def _tilted_spinning_state(ant, n, gen):
+    """Generalized states in the air, tilted far from upright and spinning (body and world frames differ)."""
+    q, qd = ant.sample_initial_state(n, gen)
+    q[:, 2] = 2.0
+    tilt = quat_from_angle_axis(torch.full((n,), 1.2), torch.nn.functional.normalize(torch.rand(n, 3, generator=gen)))
+    q[:, 3:7] = quat_mul(tilt, q[:, 3:7])
+    qd[:, 3:6] = 3.0 * (2.0 * torch.rand(n, 3, generator=gen) - 1.0)
+    qd[:, 0:3] = 2.0 * torch.rand(n, 3, generator=gen) - 1.0
+    return q, qd
+
+
+# -- (a) state layout ------------------------------------------------------------------------
+def test_generalized_state_round_trips(sim, ant):
+    q, qd = _tilted_spinning_state(ant, 2, torch.Generator().manual_seed(0))
+    state = sim.state_from_generalized(q, qd)
+    assert state.engine.shape == (2, sim.mjm.nq + sim.mjm.nv)
+    assert torch.allclose(state.joint_q, q, atol=1e-6)
+    assert torch.allclose(state.joint_qd, qd, atol=1e-5)
+    # a non-unit quaternion is normalised, not passed to the engine as is
+    scaled = q.clone()
+    scaled[:, 3:7] *= 1.5
+    assert torch.allclose(sim.state_from_generalized(scaled, qd).joint_q, q, atol=1e-6)
+
+
+def test_neutral_velocities_match_mujoco_object_velocity_with_an_off_centre_com(ant):
+    """Root COM linear velocity and world angular velocity, checked against MuJoCo's own ``mj_objectVelocity``.
+
+    The Ant's torso COM sits at its origin, so a heavy off-centre ball is added to the torso here to
+    exercise the ``w x (R c)`` term.
+    """
+    spec = build_spec(ant)
+    spec.body("torso").add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.2, 0, 0], pos=[0.3, -0.2, 0.1])
+    m = spec.compile()
+    com = m.body_ipos[1]
+    assert np.linalg.norm(com) > 0.05
+    d = mujoco.MjData(m)
+    q, qd = _tilted_spinning_state(ant, 3, torch.Generator().manual_seed(1))
+    engine = generalized_to_engine(q.double(), qd.double(), torch.tensor(com))
+    joint_q, joint_qd = engine_to_generalized(engine, torch.tensor(com))
+    assert torch.allclose(joint_q, q.double(), atol=1e-6) and torch.allclose(joint_qd, qd.double(), atol=1e-6)
+    for i in range(3):
+        d.qpos[:], d.qvel[:] = engine[i, : m.nq].numpy(), engine[i, m.nq :].numpy()
+        mujoco.mj_forward(m, d)
+        vel = np.zeros(6)  # (angular, linear) at the body's COM, world orientation
+        mujoco.mj_objectVelocity(m, d, mujoco.mjtObj.mjOBJ_BODY, 1, vel, 0)
+        np.testing.assert_allclose(qd[i, 3:6].numpy(), vel[:3], atol=1e-6)
+        np.testing.assert_allclose(qd[i, 0:3].numpy(), vel[3:], atol=1e-6)
+
+
+def test_layout_velocities_are_world_frame(sim, ant):
+    """Root linear velocity moves the root along world x; angular velocity turns it about world z.
+
+    Same assertions and tolerances as the Newton adapter's test.
+    """
+    n = sim.num_envs
+    q, qd = ant.default_state()
+    q, qd = q.repeat(n, 1), qd.repeat(n, 1)
+    q[:, 2] = 2.0  # in the air
+    tilt = quat_from_angle_axis(torch.tensor(math.pi / 2), torch.tensor([1.0, 0.0, 0.0]))
+    q[:, 3:7] = tilt  # so a body-frame z rate would differ from a world-frame one
+    qd[:, 0] = 1.0
+    qd[:, 5] = 1.0
+    with torch.no_grad():
+        state = sim.simulate(sim.state_from_generalized(q, qd), torch.zeros(n, 8))
+    dt = ant.physics.frame_dt
+    assert torch.allclose(state.root_pos[:, 0], torch.full((n,), dt), rtol=0.05)
+    assert torch.allclose(state.root_lin_vel[:, 0], torch.ones(n), atol=0.02)
+    expected = quat_mul(quat_from_angle_axis(torch.tensor(dt), torch.tensor([0.0, 0.0, 1.0])), tilt)
+    dots = (state.root_quat * expected).sum(-1).abs()
+    assert torch.all(dots > 1 - 1e-4), dots
+    assert torch.allclose(state.root_ang_vel[:, 2], torch.ones(n), atol=0.05)
+
+
+# -- (b) gradients -----------------------------------------------------------------------------
+def test_gradients_match_finite_differences_on_contact_free_rollout(sim):
+    """4 control steps, w.r.t. every action and the initial state (measured: ~5e-4 and ~4e-4).
+
+    Checks the chaining of the per-step finite-difference Jacobians against finite differences of
+    the whole rollout loss.
+    """
+    result = gradcheck(sim, steps=4, seed=0, start_height=2.0)
+    assert result.action_rel_error < DEFAULT_TOLERANCE, result
+    assert result.state_rel_error < DEFAULT_TOLERANCE, result
+
+
+class _DropsStateGradient(MujocoWarpSim):
+    """A deliberately broken adapter: forgets d(next state)/d(previous state)."""
+
+    name = "broken"
+
+    def simulate(self, state, control):
+        return super().simulate(state.detach(), control)
+
+
+def test_gradcheck_catches_a_broken_adapter(ant):
+    result = gradcheck(_DropsStateGradient(ant, num_envs=2, seed=1), steps=1, seed=0, start_height=2.0)
+    assert result.state_rel_error > 10 * DEFAULT_TOLERANCE
+
+
+def test_one_step_gradient_matches_ambient_finite_differences_of_the_engine_state(sim, ant):
+    """The quaternion mapping: d(loss)/d(engine input), all 29 ambient coordinates, tilted and spinning.
+
+    The gradient along the quaternion itself is zero (MuJoCo normalises it).
+    """
+    gen = torch.Generator().manual_seed(2)
+    engine = sim.state_from_generalized(*_tilted_spinning_state(ant, 2, gen)).engine.detach()
+    control = 50.0 * (2.0 * torch.rand(2, 8, generator=gen) - 1.0)
+    weights = torch.randn(2, engine.shape[1], generator=gen)
+
+    def loss(e):
+        return (sim.simulate(sim._state_from_engine(e), control).engine * weights).sum(dim=1).double()
+
+    e_var = engine.clone().requires_grad_(True)
+    loss(e_var).sum().backward()
+    eps = 1e-3
+    fd = torch.zeros_like(engine, dtype=torch.float64)
+    with torch.no_grad():
+        for i in range(engine.shape[1]):
+            plus, minus = engine.clone(), engine.clone()
+            plus[:, i] += eps
+            minus[:, i] -= eps
+            fd[:, i] = (loss(plus) - loss(minus)) / (2 * eps)
+    err = (e_var.grad.double() - fd).norm(dim=1) / fd.norm(dim=1)
+    assert float(err.max()) < 1e-2, err
+    radial = (e_var.grad[:, 3:7] * engine[:, 3:7]).sum(dim=1)
+    assert float(radial.abs().max()) < 1e-6 * float(e_var.grad.abs().max()), radial
+
+
+def test_forward_with_grad_equals_forward_without_and_chunking_changes_nothing(sim, ant):
+    gen = torch.Generator().manual_seed(3)
+    engine = sim.state_from_generalized(*ant.sample_initial_state(2, gen)).engine.detach()
+    control = ant.actions_to_control(_actions(2, gen))
+    with torch.no_grad():
+        plain = sim.simulate(sim._state_from_engine(engine), control).engine
+    nominal, jac_state, jac_control = sim.fd_jacobians(engine, control)
+    assert torch.equal(plain, nominal)
+    chunked = make("mujoco_warp", ant, num_envs=2, seed=1, fd_chunk_envs=1)
+    nominal_c, jac_state_c, jac_control_c = chunked.fd_jacobians(engine, control)
+    assert torch.equal(nominal, nominal_c)
+    assert torch.allclose(jac_state, jac_state_c, rtol=0, atol=1e-6)
+    assert torch.allclose(jac_control, jac_control_c, rtol=0, atol=1e-9)
+    assert sim.worlds_per_env_with_grad == 1 + 2 * (2 * 14 + 8)
+
+
+# -- (c) per-step Jacobians against MuJoCo's float64 C finite differences ---------------------------
+def _transition_fd_reference(ant, engine: np.ndarray, torque: np.ndarray):
+    """Tangent Jacobians (A: 2nv x 2nv, B: 2nv x nu) of one control step from ``mjd_transitionFD``.
+
+    The same model in C MuJoCo (float64), with gear-1 motors on the hinges so ``ctrl`` is the
+    torque that the adapter applies through ``qfrc_applied``; the substeps' Jacobians are chained.
+    """
+    spec = build_spec(ant)
+    for joint in spec.joints:
+        if joint.type == mujoco.mjtJoint.mjJNT_HINGE:
+            spec.add_actuator(target=joint.name, trntype=mujoco.mjtTrn.mjTRN_JOINT, gear=[1, 0, 0, 0, 0, 0])
+    m = spec.compile()
+    d = mujoco.MjData(m)
+    d.qpos[:], d.qvel[:], d.ctrl[:] = engine[: m.nq], engine[m.nq :], torque
+    a_total, b_total = np.eye(2 * m.nv), np.zeros((2 * m.nv, m.nu))
+    for _ in range(ant.physics.substeps):
+        a, b = np.zeros((2 * m.nv, 2 * m.nv)), np.zeros((2 * m.nv, m.nu))
+        mujoco.mjd_transitionFD(m, d, 1e-6, True, a, b, None, None)
+        a_total, b_total = a @ a_total, a @ b_total + b
+        mujoco.mj_step(m, d)
+    return a_total, b_total
+
+
+def _tangent_rows(jac: np.ndarray, next_engine: np.ndarray) -> np.ndarray:
+    """Ambient output rows -> tangent rows: the quaternion's 4 rows become the body-frame rotation's 3."""
+    w, v = next_engine[3], next_engine[4:7]
+    skew = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+    e_conj = np.concatenate((-v[:, None], w * np.eye(3) - skew), axis=1)  # r -> Im(conj(q) * r)
+    return np.concatenate((jac[0:3], 2.0 * e_conj @ jac[3:7], jac[7:]))
+
+
+def test_step_jacobians_match_mujoco_transition_fd(sim, ant):
+    """Contact-free state; measured max relative error (Frobenius, per env) ~6e-5 for A and ~4e-5 for B."""
+    gen = torch.Generator().manual_seed(4)
+    q, qd = ant.sample_initial_state(2, gen)
+    q[:, 2] = 2.0
+    engine = sim.state_from_generalized(q, qd).engine.detach()
+    control = ant.actions_to_control(0.5 * _actions(2, gen))
+    nominal, jac_state, jac_control = sim.fd_jacobians(engine, control)
+    for i in range(2):
+        a_ref, b_ref = _transition_fd_reference(ant, engine[i].double().numpy(), control[i].double().numpy())
+        y = nominal[i].double().numpy()
+        a = _tangent_rows(jac_state[i].numpy(), y)
+        b = _tangent_rows(jac_control[i].numpy(), y)
+        err_a = np.linalg.norm(a - a_ref) / np.linalg.norm(a_ref)
+        err_b = np.linalg.norm(b - b_ref) / np.linalg.norm(b_ref)
+        print(f"env {i}: Jacobian vs mjd_transitionFD, relative error A {err_a:.2e}, B {err_b:.2e}")
+        assert err_a < 1e-3 and err_b < 1e-3, (err_a, err_b)
+
+
+# -- (d) stability -----------------------------------------------------------------------------
+def test_64_envs_one_step_stays_finite(ant):
+    big = make("mujoco_warp", ant, num_envs=64, seed=5)
+    with torch.no_grad():
+        state = big.step(_actions(64, torch.Generator().manual_seed(5)))
+    assert torch.isfinite(state.engine).all() and torch.isfinite(state.joint_qd).all()
+
+
+def test_8_envs_200_random_steps_stay_finite_and_in_a_sane_box(ant):
+    eight = make("mujoco_warp", ant, num_envs=8, seed=2)
+    gen = torch.Generator().manual_seed(0)
+    lowest, highest = math.inf, -math.inf
+    with torch.no_grad():
+        for _ in range(200):
+            state = eight.step(_actions(8, gen))  # raises NonFiniteStateError on any NaN/inf
+            z = state.root_pos[:, 2]
+            lowest, highest = min(lowest, float(z.min())), max(highest, float(z.max()))
+    # torso sphere (r = 0.25) neither sinks through the ground nor gets launched
+    assert 0.1 < lowest and highest < 1.5, (lowest, highest)
+
+
+# -- (e) determinism and refusals ---------------------------------------------------------------
+def test_same_seed_same_trajectory(ant):
+    runs = []
+    for _ in range(2):
+        three = make("mujoco_warp", ant, num_envs=3, seed=7)
+        gen = torch.Generator().manual_seed(0)
+        with torch.no_grad():
+            for _ in range(5):
+                state = three.step(_actions(3, gen))
+        runs.append(state.engine)
+    assert torch.equal(runs[0], runs[1])
+    other = make("mujoco_warp", ant, num_envs=3, seed=8)
+    assert not torch.equal(other.state.engine, make("mujoco_warp", ant, num_envs=3, seed=7).state.engine)
+
+
+def test_unsupported_controls_and_particles_are_refused(sim, ant):
+    class PositionTargetAnt(type(ant)):
+        control_kind = ControlKind.JOINT_POSITION_TARGET
+
+    with pytest.raises(BackendError, match="not supported"):
+        make("mujoco_warp", PositionTargetAnt(), num_envs=1)
+    q, qd = ant.default_state()
+    with pytest.raises(BackendError, match="particles"):
+        sim.state_from_generalized(q[None], qd[None], particle_q=torch.zeros(1, 1, 3))
+
+
+def test_bad_actions_are_refused_and_simulation_nan_is_reported_per_env(sim, ant):
+    with pytest.raises(InvalidActionError, match="shape"):
+        sim.step(torch.zeros(2, 7))
+    q, qd = ant.sample_initial_state(2, torch.Generator().manual_seed(0))
+    qd[1, 6:] = 1e38  # joint velocities that overflow float32 arithmetic in env 1 only
+    sim.state = sim.state_from_generalized(q, qd)
+    kept = sim.state
+    with pytest.raises(NonFiniteStateError) as info, torch.no_grad():
+        sim.step(torch.zeros(2, 8))
+    assert info.value.env_ids == [1]
+    assert sim.state is kept
+    sim.reset(info.value.env_ids)
+    with torch.no_grad():
+        assert torch.isfinite(sim.step(torch.zeros(2, 8)).engine).all()
