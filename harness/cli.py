@@ -152,6 +152,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--windows", type=_positive_int, default=3)
     p.add_argument("--out", default=None)
 
+    p = sub.add_parser("crosscheck", help="compare backends' gradients of the same loss, start and actions")
+    p.add_argument("--task", required=True)
+    p.add_argument("--backends", nargs="+", required=True)
+    p.add_argument("--num-envs", type=_positive_int, default=4)
+    p.add_argument("--steps", type=_positive_int, default=8)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", default=None)
+
     p = sub.add_parser("throughput", help="env-steps/s forward-only and forward+backward")
     _add_sim_args(p, num_envs=64)
     p.add_argument("--horizon", type=_positive_int, default=32, help="steps per window (graph cut after each)")
@@ -222,6 +230,7 @@ def cmd_throughput(args) -> int:
     result = measure(sim, horizon=args.horizon, windows=args.windows, seed=args.seed, bare=bare)
     print(f"  forward only:        {result.forward_steps_per_s:10.0f} env-steps/s")
     print(f"  forward + backward:  {result.forward_backward_steps_per_s:10.0f} env-steps/s")
+    print(f"  gradient cost:       {result.gradient_cost_factor:10.2f} x a forward-only step")
     if result.bare_engine_steps_per_s is not None:
         print(f"  bare engine tape:    {result.bare_engine_steps_per_s:10.0f} env-steps/s (forward + backward)")
         print(f"  adapter / bare time: {result.overhead_ratio:10.3f}")
@@ -382,7 +391,24 @@ def cmd_grad_growth(args) -> int:
     return 0
 
 
+def cmd_crosscheck(args) -> int:
+    import json
+
+    from harness.crosscheck import crosscheck
+    from harness.results import provenance, write_json
+
+    for name in args.backends:
+        args.backend = name
+        _validate_names(args)
+    report = crosscheck(args.task, args.backends, num_envs=args.num_envs, steps=args.steps, seed=args.seed)
+    print(json.dumps(report["segments"], indent=2))
+    if args.out:
+        print(f"wrote {write_json(args.out, {**report, 'provenance': provenance()})}")
+    return 0
+
+
 VERBS = {
+    "crosscheck": cmd_crosscheck,
     "grad-growth": cmd_grad_growth,
     "report": cmd_report,
     "sweep": cmd_sweep,

@@ -28,8 +28,20 @@ class ThroughputResult:
             return None
         return self.bare_engine_steps_per_s / self.forward_backward_steps_per_s
 
+    @property
+    def gradient_cost_factor(self) -> float:
+        """Time of a step with gradients (forward + backward) / time of a forward-only step.
+
+        For a finite-difference adapter this is its finite-difference overhead factor.
+        """
+        return self.forward_steps_per_s / self.forward_backward_steps_per_s
+
     def as_dict(self) -> dict:
-        return {**asdict(self), "overhead_ratio": self.overhead_ratio}
+        return {
+            **asdict(self),
+            "overhead_ratio": self.overhead_ratio,
+            "gradient_cost_factor": self.gradient_cost_factor,
+        }
 
 
 def _window(sim: BatchedSim, horizon: int, grad: bool, gen: torch.Generator) -> float:
