@@ -66,7 +66,7 @@ def test_lambda_update_moves_only_lambda(env):
     after = algo.state_dict()
     assert all(torch.equal(frozen[k], after[k]) for k in frozen), "actor/critic/normaliser changed"
     assert float(algo.lam.detach()) != lam_before
-    assert 0.0 < float(algo.lam) < 1.0
+    assert 0.0 < float(algo.lam.detach()) < 1.0
 
 
 def test_lambda_stays_strictly_inside_unit_interval(env):
@@ -75,7 +75,7 @@ def test_lambda_stays_strictly_inside_unit_interval(env):
     w = algo.rollout(env)
     for _ in range(200):
         algo.update_lambda(w)
-    assert 0.0 < float(algo.lam) < 1.0
+    assert 0.0 < float(algo.lam.detach()) < 1.0
 
 
 def test_lambda_schedule_every_second_epoch():
