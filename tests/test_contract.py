@@ -8,6 +8,8 @@ on a smooth segment, per-env NaN reporting, and refusal of bad actions before th
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 
@@ -15,6 +17,7 @@ import backends
 from backends import InvalidActionError, NonFiniteStateError
 from harness.gradcheck import DEFAULT_TOLERANCE, gradcheck
 from tasks import make_task
+from tasks.rotations import quat_from_angle_axis, quat_mul
 
 BACKENDS = backends.available()
 N = 3
@@ -75,6 +78,31 @@ def test_seeding_and_determinism(adapter):
         runs.append(sim.state.joint_q)
     assert torch.equal(runs[0], runs[1])
     assert not torch.equal(_sim(adapter, seed=5).state.joint_q, _sim(adapter, seed=6).state.joint_q)
+
+
+def test_floating_base_velocities_are_world_frame(adapter):
+    """Root linear velocity moves the root along world x; angular velocity turns it about world z,
+    with the body tilted so that a body-frame rate would turn it about another axis."""
+    task = adapter[1]
+    if not task.layout.floating_base:
+        pytest.skip("no floating base")
+    sim = _sim(adapter)
+    q, qd = task.sample_initial_state(N, torch.Generator().manual_seed(0))
+    q[:, 2] = 2.0  # in the air
+    tilt = quat_from_angle_axis(torch.tensor(math.pi / 2), torch.tensor([1.0, 0.0, 0.0]))
+    q[:, 0:2], q[:, 3:7] = 0.0, tilt
+    qd.zero_()
+    qd[:, 0] = 1.0
+    qd[:, 5] = 1.0
+    with torch.no_grad():
+        state = sim.simulate(sim.state_from_generalized(q, qd), torch.zeros(N, task.action_dim))
+    dt = task.physics.frame_dt
+    assert torch.allclose(state.root_pos[:, 0], torch.full((N,), dt), rtol=0.05)
+    assert torch.allclose(state.root_lin_vel[:, 0], torch.ones(N), atol=0.02)
+    expected = quat_mul(quat_from_angle_axis(torch.tensor(dt), torch.tensor([0.0, 0.0, 1.0])), tilt)
+    dots = (state.root_quat * expected).sum(-1).abs()
+    assert torch.all(dots > 1 - 1e-4), dots
+    assert torch.allclose(state.root_ang_vel[:, 2], torch.ones(N), atol=0.05)
 
 
 def test_reset_touches_only_the_named_envs_and_cuts_only_their_graph(adapter):
