@@ -9,7 +9,7 @@ import torch
 
 pytest.importorskip("newton")
 
-from backends import BackendError, InvalidActionError, NonFiniteStateError, make  # noqa: E402
+from backends import BackendError, ControlKind, InvalidActionError, NonFiniteStateError, make  # noqa: E402
 from backends.newton import NewtonSim  # noqa: E402
 from harness.gradcheck import DEFAULT_TOLERANCE, gradcheck  # noqa: E402
 from tasks import make_task  # noqa: E402
@@ -157,3 +157,11 @@ def test_malformed_asset_is_one_clear_error(tmp_path, ant):
 
     with pytest.raises(BackendError, match="cannot load mjcf asset"):
         make("newton", BrokenAnt(), num_envs=1)
+
+
+def test_unsupported_control_kinds_are_refused_at_build(ant):
+    class PositionTargetAnt(type(ant)):
+        control_kind = ControlKind.JOINT_POSITION_TARGET
+
+    with pytest.raises(BackendError, match="not supported"):
+        make("newton", PositionTargetAnt(), num_envs=1)

@@ -65,7 +65,9 @@ class NewtonSim(BatchedSim):
     """A task on Newton's semi-implicit solver; see the module docstring.
 
     Options: ``max_graph_steps`` (default 64) frames kept replayable; ``contact_gap`` (default
-    0.05 m) contact-candidate distance; ``angular_damping`` (default 0.05, Newton's default).
+    0.05 m) contact-candidate distance; ``angular_damping`` (default 0.05), ``joint_attach_ke``
+    (1e4) and ``joint_attach_kd`` (1e2): the solver's own defaults, exposed for experiments.
+    Controls: joint torques only, so far.
     """
 
     name = "newton"
@@ -74,6 +76,8 @@ class NewtonSim(BatchedSim):
     def _build(self) -> None:
         task = self.task
         phys = task.physics
+        if task.control_kind != ControlKind.JOINT_TORQUE:
+            raise BackendError(f"control kind {task.control_kind.value!r} is not supported by the newton adapter yet")
         self.max_graph_steps = int(self.options.get("max_graph_steps", 64))
         if self.max_graph_steps < 1:
             raise ValueError("max_graph_steps must be >= 1")
@@ -147,11 +151,9 @@ class NewtonSim(BatchedSim):
         model.joint_limit_ke.assign(per_dof(phys.joint_limit_ke))
         model.joint_limit_kd.assign(per_dof(phys.joint_limit_kd))
         model.joint_damping.assign(per_dof(phys.joint_damping))
-        pd = self.task.control_kind == ControlKind.JOINT_POSITION_TARGET
-        model.joint_target_ke.assign(per_dof(phys.pd_ke if pd else 0.0))
-        model.joint_target_kd.assign(per_dof(phys.pd_kd if pd else 0.0))
-        if self.task.control_kind == ControlKind.TET_ACTIVATION:
-            raise BackendError("tet activations are not supported by the newton adapter yet")
+        # torque control: no PD drive (the importer may have set gains from the MJCF's actuators)
+        model.joint_target_ke.assign(per_dof(0.0))
+        model.joint_target_kd.assign(per_dof(0.0))
 
     @property
     def layout(self) -> StateLayout:
@@ -254,8 +256,6 @@ class NewtonSim(BatchedSim):
 
     def _control_to_joint_f(self, control: torch.Tensor) -> torch.Tensor:
         """Generalized forces for every dof: zero on the free root, the control on the rest."""
-        if self.task.control_kind != ControlKind.JOINT_TORQUE:
-            raise BackendError(f"control kind {self.task.control_kind.value!r} is not supported by newton yet")
         root = self.layout.nv - self.layout.num_dofs
         return torch.nn.functional.pad(control, (root, 0))
 
