@@ -84,16 +84,13 @@ that: steps of 1e-3 / 0.1 N m and 1e-4 / 0.01 N m give max errors of 0.27 and 0.
 from __future__ import annotations
 
 import mujoco
+import mujoco_warp as mjw
 import torch
 import warp as wp
 
-wp.config.quiet = True  # no per-module compile lines
-wp.config.log_level = wp.LOG_WARNING  # no start-up banner; warnings still show
-
-import mujoco_warp as mjw  # noqa: E402
-
-from backends.contract import BackendError, BatchedSim, ControlKind, SimState, StateLayout  # noqa: E402
-from tasks.rotations import (  # noqa: E402
+from backends._warp import warp_device
+from backends.contract import BackendError, BatchedSim, ControlKind, SimState, StateLayout
+from tasks.rotations import (
     quat_conjugate,
     quat_from_rotation_vector,
     quat_mul,
@@ -104,12 +101,6 @@ from tasks.rotations import (  # noqa: E402
 
 _ROOT_Q = 7  # free joint: position (3) + quaternion w, x, y, z (4)
 _ROOT_V = 6  # free joint: linear velocity (3, world frame) + angular velocity (3, body frame)
-
-
-def _warp_device(device: torch.device) -> str:
-    if device.type == "cpu":
-        return "cpu"
-    return f"cuda:{device.index or 0}"
 
 
 def build_spec(task) -> mujoco.MjSpec:
@@ -175,7 +166,7 @@ class MujocoWarpSim(BatchedSim):
             raise ValueError("fd_eps_state and fd_eps_control must be positive")
         if self.fd_chunk_envs < 1 or self.nconmax < 1 or self.njmax < 1:
             raise ValueError("fd_chunk_envs, nconmax and njmax must be >= 1")
-        self.wp_device = _warp_device(self.device)
+        self.wp_device = warp_device(self.device)
 
         self.mjm = build_spec(task).compile()
         layout = task.layout

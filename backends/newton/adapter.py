@@ -26,25 +26,16 @@ from __future__ import annotations
 
 import warnings
 
+import newton
 import numpy as np
 import torch
 import warp as wp
 
-wp.config.quiet = True  # no per-module compile lines
-wp.config.log_level = wp.LOG_WARNING  # no start-up banner; warnings still show
-
-import newton  # noqa: E402
-
-from backends.contract import BackendError, BatchedSim, ControlKind, SimState, StateLayout  # noqa: E402
+from backends._warp import warp_device
+from backends.contract import BackendError, BatchedSim, ControlKind, SimState, StateLayout
 
 _POSE = 7  # wp.transform: position (3) + quaternion xyzw (4)
 _TWIST = 6  # wp.spatial_vector: COM linear velocity (3) + angular velocity (3), world frame
-
-
-def _warp_device(device: torch.device) -> str:
-    if device.type == "cpu":
-        return "cpu"
-    return f"cuda:{device.index or 0}"
 
 
 class _Frame:
@@ -82,7 +73,7 @@ class NewtonSim(BatchedSim):
         if self.max_graph_steps < 1:
             raise ValueError("max_graph_steps must be >= 1")
         contact_gap = float(self.options.get("contact_gap", 0.05))
-        self.wp_device = _warp_device(self.device)
+        self.wp_device = warp_device(self.device)
 
         shape_cfg = newton.ModelBuilder.ShapeConfig(
             ke=phys.contact_ke, kd=phys.contact_kd, kf=phys.contact_kf, mu=phys.contact_mu, gap=contact_gap

@@ -19,15 +19,12 @@ import sys
 import warnings
 from pathlib import Path
 
+import newton  # noqa: E402
+import newton.examples  # noqa: E402  (asset lookup for the shipped nv_ant.xml)
 import numpy as np
 import warp as wp
 
-wp.config.quiet = True
-wp.config.log_level = wp.LOG_WARNING
-
-import newton  # noqa: E402
-import newton.examples  # noqa: E402  (asset lookup for the shipped nv_ant.xml)
-
+import backends._warp  # noqa: E402,F401  (quiet Warp before newton starts it)
 from tasks import make_task  # noqa: E402
 
 
