@@ -76,35 +76,7 @@ def test_64_envs_1000_random_steps_stay_finite_and_in_a_sane_box(ant):
     assert farthest < 10.0, farthest
 
 
-# -- (c) graph cuts ----------------------------------------------------------------------------
-def test_reset_cuts_the_graph_only_for_reset_envs(small):
-    gen = torch.Generator().manual_seed(1)
-    small.reset()
-    small.cut_graph()
-    first = _actions(4, gen, grad=True)
-    small.step(first)
-    small.reset([1, 3])
-    state = small.step(_actions(4, gen))
-    state.root_pos[:, 0].sum().backward()
-    per_env = first.grad.abs().sum(dim=1)
-    assert per_env[1] == 0 and per_env[3] == 0
-    assert per_env[0] > 0 and per_env[2] > 0
-
-
-def test_window_cut_leaves_no_path_to_earlier_steps(small):
-    gen = torch.Generator().manual_seed(2)
-    small.reset()
-    before = _actions(4, gen, grad=True)
-    small.step(before)
-    small.cut_graph()
-    after = _actions(4, gen, grad=True)
-    state = small.step(after)
-    loss = state.joint_q.sum() + state.engine.sum()
-    g_before, g_after = torch.autograd.grad(loss, (before, after), allow_unused=True)
-    assert g_before is None
-    assert g_after is not None and g_after.abs().sum() > 0
-
-
+# -- (c) graph cuts: per-env resets and window cuts are checked for every adapter in test_contract.py --
 def test_graph_longer_than_the_buffer_ring_refuses_backward(ant):
     sim = make("newton", ant, num_envs=2, seed=0, max_graph_steps=3)
     gen = torch.Generator().manual_seed(3)
