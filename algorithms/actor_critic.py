@@ -7,11 +7,17 @@ One epoch (Algorithm 1 of the ARE paper):
 2. Actor: minimise L_theta = -(1/(N h)) sum of returns at mini-trajectory starts, with the
    h-step bootstrapped return (eq. 9, SHAC/SAPO) or the truncated TD-lambda return (eq. 12,
    TDFixed/TDAdpt); the bootstrap value carries gradient through the state into the actor.
-3. TDAdpt only: update phi, lambda = sigmoid(phi), on eq. 15 with actor and critic frozen.
-4. Critic: regress V_phi(s_t) onto detached TD-lambda targets (eq. 11), m_critic iterations
+3. SAPO only: the temperature alpha is trained towards the target entropy (Mineral's order:
+   right after the actor, so the critic targets below use the new alpha).
+4. TDAdpt only: update phi, lambda = sigmoid(phi), on eq. 15 with actor and critic frozen.
+5. Critic: regress V_phi(s_t) onto detached TD-lambda targets (eq. 11), m_critic iterations
    over b_critic minibatches; SHAC then moves its target critic by Polyak averaging.
-5. SAPO only: rewards carry the entropy bonus -alpha * log pi(a|s); the temperature alpha is
-   trained towards the target entropy.
+
+SAPO's entropy bonus (Mineral's ``DFlexAntSAPO``): at every step the reward gains
+``alpha * (H + |T|) / (2 |T|)``, where ``H`` is a one-sample estimate of the policy's entropy at
+s_t (``-log pi`` of a second, independent sample, differentiable) and ``T = -0.5 |A|`` the target
+entropy; the actor's return uses the alpha of the rollout, the critic (and lambda) targets the
+alpha after this epoch's temperature update, on the detached entropies of the rollout.
 
 The algorithm sees only a :class:`tasks.env.TaskEnv`; no engine is imported here.
 """
@@ -28,7 +34,7 @@ from torch import Tensor, nn
 
 from algorithms.config import AlgoConfig
 from algorithms.grad_variance import gradient_variance
-from algorithms.networks import Critic, GaussianActor, SquashedGaussianActor
+from algorithms.networks import STYLES, Critic, GaussianActor, SquashedGaussianActor
 from algorithms.normalization import RunningMeanStd
 from algorithms.returns import (
     actor_loss_from_returns,
@@ -46,6 +52,8 @@ class Window:
     """What one rollout leaves behind; (T, N) unless noted."""
 
     rewards: Tensor  # with graph (entropy bonus included for SAPO)
+    env_rewards: Tensor  # the task's rewards, detached (no entropy bonus)
+    entropies: Tensor  # SAPO: one-sample entropy estimates H(pi(.|s_t)), detached; zeros otherwise
     actor_next_values: Tensor  # bootstrap values for the actor, with graph
     target_next_values: Tensor  # bootstrap values for critic/lambda targets, detached
     terminated: Tensor
@@ -58,9 +66,9 @@ class Window:
     sim_seconds: float = 0.0
 
 
-def _optimizer(kind: str, params, lr: float, betas) -> torch.optim.Optimizer:
+def _optimizer(kind: str, params, lr: float, betas, weight_decay: float) -> torch.optim.Optimizer:
     cls = torch.optim.AdamW if kind == "adamw" else torch.optim.Adam
-    return cls(params, lr=lr, betas=tuple(betas))
+    return cls(params, lr=lr, betas=tuple(betas), weight_decay=weight_decay)
 
 
 def _finite(norm: Tensor, limit: float) -> bool:
@@ -70,29 +78,41 @@ def _finite(norm: Tensor, limit: float) -> bool:
 class FirstOrderActorCritic(nn.Module):
     def __init__(self, config: AlgoConfig, obs_dim: int, act_dim: int):
         super().__init__()
-        cfg = self.cfg = config.validate()
+        cfg = self.cfg = config
         self.act_dim = act_dim
         actor_cls = SquashedGaussianActor if cfg.soft else GaussianActor
-        self.actor = actor_cls(obs_dim, act_dim, hidden_sizes=cfg.actor_hidden)
-        self.critics = nn.ModuleList(Critic(obs_dim, hidden_sizes=cfg.critic_hidden) for _ in range(cfg.num_critics))
+        actor_style, critic_style = STYLES[cfg.network_style]
+        self.actor = actor_cls(obs_dim, act_dim, cfg.actor_hidden, **actor_style)
+        self.critics = nn.ModuleList(Critic(obs_dim, cfg.critic_hidden, **critic_style) for _ in range(cfg.num_critics))
         self.target_critics = copy.deepcopy(self.critics) if cfg.target_critic_alpha is not None else None
         if self.target_critics is not None:
             self.target_critics.requires_grad_(False)
         self.obs_rms = RunningMeanStd((obs_dim,))
-        # lambda = sigmoid(phi): phi starts at logit(lam) so that lambda = cfg.lam (0.95)
-        self.phi = nn.Parameter(torch.tensor(math.log(cfg.lam / (1.0 - cfg.lam)) if cfg.lam < 1.0 else math.inf))
+        # TDAdpt: lambda = sigmoid(phi), phi starts at logit(lam) so that lambda = cfg.lam (0.95). Without
+        # adaptation lambda is the constant cfg.lam (1.0 allowed) and phi stays a finite, unused 0.
+        phi0 = math.log(cfg.lam / (1.0 - cfg.lam)) if cfg.adaptive_lambda else 0.0
+        self.phi = nn.Parameter(torch.tensor(phi0))
         self.log_alpha = nn.Parameter(torch.tensor(math.log(cfg.init_alpha)))
-        self.actor_opt = _optimizer(cfg.optimizer, self.actor.parameters(), cfg.actor_lr, cfg.betas)
-        self.critic_opt = _optimizer(cfg.optimizer, self.critics.parameters(), cfg.critic_lr, cfg.betas)
-        self.lambda_opt = torch.optim.AdamW([self.phi], lr=cfg.lambda_lr, betas=cfg.lambda_betas)
-        self.alpha_opt = torch.optim.AdamW([self.log_alpha], lr=cfg.alpha_lr, betas=cfg.betas)
+        self.actor_opt = _optimizer(cfg.optimizer, self.actor.parameters(), cfg.actor_lr, cfg.betas, cfg.weight_decay)
+        self.critic_opt = _optimizer(
+            cfg.optimizer, self.critics.parameters(), cfg.critic_lr, cfg.betas, cfg.weight_decay
+        )
+        # weight decay set explicitly (torch's AdamW default is 0.01): see AlgoConfig.lambda_weight_decay
+        self.lambda_opt = torch.optim.AdamW(
+            [self.phi], lr=cfg.lambda_lr, betas=cfg.lambda_betas, weight_decay=cfg.lambda_weight_decay
+        )
+        self.alpha_opt = torch.optim.AdamW(
+            [self.log_alpha], lr=cfg.alpha_lr, betas=cfg.betas, weight_decay=cfg.alpha_weight_decay
+        )
         self.epoch = 0
 
     # -- small pieces --------------------------------------------------------------------
     @property
     def lam(self) -> Tensor:
-        """Current lambda (a 0-dim tensor; learnable only in TDAdpt)."""
-        return torch.sigmoid(self.phi)
+        """Current lambda (a 0-dim tensor): sigmoid(phi) in TDAdpt, the constant cfg.lam otherwise."""
+        if self.cfg.adaptive_lambda:
+            return torch.sigmoid(self.phi)
+        return self.phi.new_tensor(self.cfg.lam)
 
     @property
     def alpha(self) -> float:
@@ -127,14 +147,17 @@ class FirstOrderActorCritic(nn.Module):
         cfg = self.cfg
         env.cut_graph()  # window boundary: nothing below reaches earlier windows
         obs = env.obs
-        alpha = self.alpha
-        rewards, actor_v, target_v, term, trunc, obs_buf, heads, logps = [], [], [], [], [], [], [], []
-        finished_r, finished_l = [], []
+        alpha = self.alpha  # the rollout's temperature, a constant inside the actor's return
+        # DiffRL and Mineral normalise a rollout with the statistics frozen at its start
+        frozen_rms = copy.deepcopy(self.obs_rms)
+        names = ("rewards", "env_rewards", "entropies", "actor_v", "target_v", "term", "trunc", "obs", "logp")
+        columns: dict[str, list[Tensor]] = {k: [] for k in names}
+        heads, finished_r, finished_l = [], [], []
         sim_seconds = 0.0
         for _ in range(cfg.horizon):
+            nobs = frozen_rms.normalize(obs) if cfg.obs_norm else obs
             if cfg.obs_norm:
                 self.obs_rms.update(obs.detach())
-            nobs = self.normalize(obs)
             head = self.actor.head(nobs)
             if track_heads and head.requires_grad:
                 head.retain_grad()
@@ -142,36 +165,57 @@ class FirstOrderActorCritic(nn.Module):
             start = time.perf_counter()
             step = env.step(action)
             sim_seconds += time.perf_counter() - start
-            reward = step.reward
-            if cfg.soft:
-                reward = reward - alpha * log_prob  # entropy bonus inside the return
-            values = self.values(self.normalize(step.final_obs), target=True)
-            actor_v.append(values.mean(0))  # SAPO: mean of the critics; SHAC: the target critic
-            target_v.append(values.min(0).values.detach())  # SAPO: min; SHAC: the same critic
-            rewards.append(reward)
-            term.append(step.terminated)
-            trunc.append(step.truncated)
-            obs_buf.append(nobs.detach())
+            reward, entropy = step.reward, torch.zeros_like(step.reward)
+            if cfg.soft:  # Mineral's entropy estimate: -log pi of a second, independent sample
+                entropy = -self.actor.act(head, torch.randn_like(head[:, : self.act_dim]))[1]
+                reward = reward + alpha * self.scaled_entropy(entropy)
+            final_nobs = frozen_rms.normalize(step.final_obs) if cfg.obs_norm else step.final_obs
+            values = self.values(final_nobs, target=True)
+            for key, value in (
+                ("rewards", reward),
+                ("env_rewards", step.reward.detach()),
+                ("entropies", entropy.detach()),
+                ("actor_v", values.mean(0)),  # SAPO: mean of the critics; SHAC: the target critic
+                ("target_v", values.min(0).values.detach()),  # SAPO: min; SHAC: the same critic
+                ("term", step.terminated),
+                ("trunc", step.truncated),
+                ("obs", nobs.detach()),
+                ("logp", log_prob.detach()),
+            ):
+                columns[key].append(value)
             heads.append(head)
-            logps.append(log_prob.detach())
             done = step.done
             if bool(done.any()):
                 finished_r += step.episode_return[done].tolist()
                 finished_l += step.episode_length[done].tolist()
             obs = step.obs
+        c = {k: torch.stack(v) for k, v in columns.items()}
         return Window(
-            rewards=torch.stack(rewards),
-            actor_next_values=torch.stack(actor_v),
-            target_next_values=torch.stack(target_v),
-            terminated=torch.stack(term),
-            truncated=torch.stack(trunc),
-            obs=torch.stack(obs_buf),
+            rewards=c["rewards"],
+            env_rewards=c["env_rewards"],
+            entropies=c["entropies"],
+            actor_next_values=c["actor_v"],
+            target_next_values=c["target_v"],
+            terminated=c["term"],
+            truncated=c["trunc"],
+            obs=c["obs"],
             heads=heads,
-            log_probs=torch.stack(logps),
+            log_probs=c["logp"],
             finished_returns=finished_r,
             finished_lengths=finished_l,
             sim_seconds=sim_seconds,
         )
+
+    def scaled_entropy(self, entropy: Tensor) -> Tensor:
+        """Mineral's entropy bonus per unit alpha: (H + |T|) / (2 |T|), T the target entropy."""
+        scale = abs(self.cfg.target_entropy_per_dim * self.act_dim)
+        return (entropy + scale) / (2.0 * scale)
+
+    def target_rewards(self, w: Window) -> Tensor:
+        """Detached rewards of the critic and lambda targets: SAPO adds the bonus at the current alpha."""
+        if not self.cfg.soft:
+            return w.env_rewards
+        return w.env_rewards + self.alpha * self.scaled_entropy(w.entropies)
 
     # -- 2. actor ----------------------------------------------------------------------------
     def actor_returns(self, w: Window, rewards: Tensor | None = None, next_values: Tensor | None = None) -> Tensor:
@@ -220,10 +264,10 @@ class FirstOrderActorCritic(nn.Module):
         m = self.cfg.lambda_iterations
         return self.cfg.adaptive_lambda and (m >= 1.0 or epoch % round(1.0 / m) == 0)
 
-    def lambda_loss(self, w: Window, predicted: Tensor, envs: slice | Tensor) -> Tensor:
+    def lambda_loss(self, w: Window, rewards: Tensor, predicted: Tensor, envs: slice | Tensor) -> Tensor:
         """Eq. 15: mean (V_phi(s) - G^lambda(s))^2 with actor and critic frozen (inputs detached)."""
         targets = td_lambda_returns(
-            w.rewards.detach()[:, envs],
+            rewards[:, envs],
             w.target_next_values[:, envs],
             w.terminated[:, envs],
             w.truncated[:, envs],
@@ -236,12 +280,13 @@ class FirstOrderActorCritic(nn.Module):
         cfg = self.cfg
         with torch.no_grad():
             predicted = self.values(w.obs, target=False).mean(0)
+        rewards = self.target_rewards(w)
         n = predicted.shape[1]
         batches = torch.randperm(n).chunk(cfg.lambda_batches)
         losses = []
         for _ in range(max(1, int(cfg.lambda_iterations))):
             for envs in batches:
-                loss = self.lambda_loss(w, predicted, envs)
+                loss = self.lambda_loss(w, rewards, predicted, envs)
                 self.lambda_opt.zero_grad()
                 loss.backward()
                 if torch.isfinite(self.phi.grad):
@@ -255,14 +300,14 @@ class FirstOrderActorCritic(nn.Module):
     def update_critic(self, w: Window) -> tuple[float, int]:
         cfg = self.cfg
         targets = critic_targets(
-            w.rewards.detach(), w.target_next_values, w.terminated, w.truncated, cfg.gamma, self.lam.detach()
+            self.target_rewards(w), w.target_next_values, w.terminated, w.truncated, cfg.gamma, self.lam.detach()
         ).reshape(-1)
         obs = w.obs.reshape(-1, w.obs.shape[-1])
         last, skipped = float("nan"), 0
         for _ in range(cfg.critic_iterations):
             for idx in torch.randperm(obs.shape[0]).chunk(cfg.critic_minibatches):
                 predicted = self.values(obs[idx], target=False)  # (num_critics, B)
-                loss = (predicted - targets[idx]).pow(2).mean(dim=1).sum()
+                loss = (predicted - targets[idx]).pow(2).mean()  # averaged over the critics, as Mineral
                 self.critic_opt.zero_grad()
                 loss.backward()
                 norm = nn.utils.clip_grad_norm_(self.critics.parameters(), cfg.critic_grad_clip)
@@ -270,7 +315,7 @@ class FirstOrderActorCritic(nn.Module):
                     self.critic_opt.step()
                 else:
                     skipped += 1
-                last = float(loss.detach()) / cfg.num_critics
+                last = float(loss.detach())
         if self.target_critics is not None:
             a = cfg.target_critic_alpha
             with torch.no_grad():
@@ -280,11 +325,13 @@ class FirstOrderActorCritic(nn.Module):
 
     # -- 5. temperature ------------------------------------------------------------------------
     def update_alpha(self, w: Window) -> float:
+        """Mineral's temperature loss: alpha * |T| * (H - T), H the rollout's mean entropy estimate."""
         target_entropy = self.cfg.target_entropy_per_dim * self.act_dim
-        entropy = -w.log_probs.mean()
-        loss = self.log_alpha * (entropy - target_entropy)  # raise alpha when entropy is too low
+        entropy = w.entropies.mean()
+        loss = self.log_alpha.exp() * abs(target_entropy) * (entropy - target_entropy)  # alpha up when H < T
         self.alpha_opt.zero_grad()
         loss.backward()
+        nn.utils.clip_grad_norm_([self.log_alpha], self.cfg.alpha_grad_clip)
         self.alpha_opt.step()
         return float(entropy)
 
@@ -306,11 +353,12 @@ class FirstOrderActorCritic(nn.Module):
         actor_ok = bool(torch.isfinite(loss)) and _finite(norm, cfg.max_grad_norm_skip)
         grad_var = float("nan")
         if actor_ok:
-            self.actor_opt.step()
+            # the group gradients are those of this update: take them before the weights move
             grad_var = float(gradient_variance(self.group_gradients(w)))
+            self.actor_opt.step()
+        entropy = self.update_alpha(w) if cfg.soft else float(-w.log_probs.mean())
         lambda_loss = self.update_lambda(w) if self.lambda_update_due(self.epoch) else float("nan")
         critic_loss, critic_skipped = self.update_critic(w)
-        entropy = self.update_alpha(w) if cfg.soft else float(-w.log_probs.mean())
         metrics["update_s"] = time.perf_counter() - start
         self.epoch += 1
         metrics.update(

@@ -1,99 +1,180 @@
-"""Hyperparameters of the six algorithms, as one small dataclass and named presets.
+"""Hyperparameters of the six algorithms: one frozen dataclass, validated once, and named presets.
 
-SHAC defaults are DiffRL's for the Ant (Xu et al., 2022); SAPO defaults follow Mineral/Rewarped
-(Xing et al., 2025); the TD-lambda settings are the ARE paper's (Section IV): lambda = 0.95 for
-both actor and critic, adaptive lambda = sigmoid(phi) trained by AdamW (lr 5e-4, betas
-(0.7, 0.95)) with one full-batch update per epoch (b_lambda = 1, m_lambda = 1).
+SHAC defaults are DiffRL's for the Ant (Xu et al., 2022); SAPO defaults are Mineral's
+``DFlexAntSAPO`` (Xing et al., 2025; the code the ARE paper's experiments used); the TD-lambda
+settings are the ARE paper's (Section IV): lambda = 0.95 for both actor and critic, adaptive
+lambda = sigmoid(phi) trained by AdamW (lr 5e-4, betas (0.7, 0.95)) with one full-batch update
+per epoch (b_lambda = 1, m_lambda = 1).
+
+Every field's ``help`` is its documentation and the ``--help`` text of its command-line flag.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
+from typing import Literal, get_args, get_type_hints
+
+_REMOVED_FIELDS = {"extra"}  # in config.json files of older runs; never read
+
+ALGORITHMS = ("shac", "shac-tdfixed", "shac-tdadpt", "sapo", "sapo-tdfixed", "sapo-tdadpt")
 
 
-@dataclass
+def _doc(default, help: str):
+    """A dataclass field whose documentation travels with it (read by the CLI)."""
+    return field(default=default, metadata={"help": help})
+
+
+@dataclass(frozen=True)
 class AlgoConfig:
-    algo: str = "shac"
+    algo: Literal["shac", "shac-tdfixed", "shac-tdadpt", "sapo", "sapo-tdfixed", "sapo-tdadpt"] = _doc(
+        "shac", "algorithm preset these settings started from"
+    )
     # -- rollout / returns -------------------------------------------------------------
-    num_envs: int = 64  # N
-    horizon: int = 32  # h: steps per window (graph cut after each)
-    gamma: float = 0.99
-    lam: float = 0.95  # critic TD-lambda; actor lambda for TDFixed; initial lambda for TDAdpt
-    actor_return: str = "h_step"  # "h_step" (eq. 9) | "td_lambda" (eq. 12)
-    adaptive_lambda: bool = False  # TDAdpt (eq. 15)
-    soft: bool = False  # SAPO: entropy in the return, squashed Gaussian, learnable temperature
+    num_envs: int = _doc(64, "N: parallel environments per epoch")
+    horizon: int = _doc(32, "h: control steps per window; the graph is cut at every window start")
+    gamma: float = _doc(0.99, "discount factor, in (0, 1]")
+    lam: float = _doc(
+        0.95, "TD-lambda of the critic targets; also the actor's lambda (TDFixed) or its start value (TDAdpt)"
+    )
+    actor_return: Literal["h_step", "td_lambda"] = _doc(
+        "h_step", "actor return: h_step (eq. 9, SHAC/SAPO) or td_lambda (eq. 12, the TD variants)"
+    )
+    adaptive_lambda: bool = _doc(False, "learn lambda = sigmoid(phi) online on eq. 15 (TDAdpt)")
+    soft: bool = _doc(
+        False, "SAPO: entropy bonus in the return and the critic targets, squashed Gaussian, learned temperature"
+    )
     # -- networks ----------------------------------------------------------------------
-    actor_hidden: tuple[int, ...] = (128, 64, 32)
-    critic_hidden: tuple[int, ...] = (64, 64)
-    obs_norm: bool = True
-    num_critics: int = 1  # SAPO: 2 (min for targets, mean for the actor bootstrap)
-    target_critic_alpha: float | None = 0.2  # Polyak factor kept from the target; None = no target critic
+    actor_hidden: tuple[int, ...] = _doc((128, 64, 32), "hidden layer widths of the actor MLP")
+    critic_hidden: tuple[int, ...] = _doc((64, 64), "hidden layer widths of the critic MLP")
+    network_style: Literal["diffrl", "mineral"] = _doc(
+        "diffrl",
+        "diffrl: Linear-ELU-LayerNorm, default actor init, orthogonal(sqrt 2) critic; "
+        "mineral: Linear-LayerNorm-SiLU, orthogonal(1) weights and zero biases everywhere",
+    )
+    obs_norm: bool = _doc(True, "normalise observations by running statistics (frozen during each rollout)")
+    num_critics: int = _doc(1, "critics in the ensemble (SAPO: 2; min for targets, mean for the actor bootstrap)")
+    target_critic_alpha: float | None = _doc(
+        0.2, "Polyak weight kept on the old target critic, in [0, 1]; None = no target critic"
+    )
     # -- optimisation ------------------------------------------------------------------
-    optimizer: str = "adam"  # "adam" (SHAC) | "adamw" (SAPO)
-    actor_lr: float = 2e-3
-    critic_lr: float = 2e-3
-    lr_schedule: str = "linear"  # "linear" (to min_lr at max_epochs) | "constant"
-    min_lr: float = 1e-5
-    betas: tuple[float, float] = (0.7, 0.95)
-    actor_grad_clip: float = 1.0
-    critic_grad_clip: float = 1.0
-    critic_iterations: int = 16  # m_critic
-    critic_minibatches: int = 4  # b_critic
-    max_epochs: int = 0  # end of the linear learning-rate decay; 0 = the run's number of epochs
+    optimizer: Literal["adam", "adamw"] = _doc("adam", "optimiser of actor and critic")
+    weight_decay: float = _doc(0.0, "weight decay of actor and critic (AdamW's torch default 0.01 made explicit)")
+    actor_lr: float = _doc(2e-3, "actor learning rate at epoch 0")
+    critic_lr: float = _doc(2e-3, "critic learning rate at epoch 0")
+    lr_schedule: Literal["linear", "constant"] = _doc(
+        "linear", "linear: actor and critic rates decay to min_lr at max_epochs; constant: no decay"
+    )
+    min_lr: float = _doc(1e-5, "learning rate reached at max_epochs by the linear schedule")
+    betas: tuple[float, float] = _doc((0.7, 0.95), "Adam(W) betas of actor and critic")
+    actor_grad_clip: float = _doc(1.0, "max global norm of the actor gradient")
+    critic_grad_clip: float = _doc(1.0, "max global norm of the critic gradient")
+    critic_iterations: int = _doc(16, "m_critic: passes over the window's data per epoch")
+    critic_minibatches: int = _doc(4, "b_critic: minibatches per pass")
+    max_epochs: int = _doc(0, "end of the linear learning-rate decay; 0 = the run's number of epochs")
     # -- adaptive lambda (TDAdpt) ------------------------------------------------------
-    lambda_lr: float = 5e-4
-    lambda_betas: tuple[float, float] = (0.7, 0.95)
-    lambda_batches: int = 1  # b_lambda: env groups per lambda iteration
-    lambda_iterations: float = 1.0  # m_lambda; 0.5 = one lambda iteration every second epoch
+    lambda_lr: float = _doc(5e-4, "AdamW learning rate of phi (lambda = sigmoid(phi))")
+    lambda_betas: tuple[float, float] = _doc((0.7, 0.95), "AdamW betas of phi")
+    lambda_weight_decay: float = _doc(
+        0.0, "AdamW weight decay of phi; 0 because eq. 15 has no regulariser (torch's default 0.01 pulls phi to 0)"
+    )
+    lambda_batches: int = _doc(1, "b_lambda: env groups per lambda iteration")
+    lambda_iterations: float = _doc(1.0, "m_lambda: lambda iterations per epoch; 1/k = one every k-th epoch")
     # -- SAPO temperature ----------------------------------------------------------------
-    init_alpha: float = 1.0
-    alpha_lr: float = 5e-3
-    target_entropy_per_dim: float = -0.5  # target entropy = this * |A|
+    init_alpha: float = _doc(1.0, "initial entropy temperature alpha (SAPO)")
+    alpha_lr: float = _doc(5e-3, "AdamW learning rate of log alpha")
+    alpha_weight_decay: float = _doc(0.01, "AdamW weight decay of log alpha (Mineral runs with torch's default)")
+    alpha_grad_clip: float = _doc(0.5, "max gradient norm of the temperature update")
+    target_entropy_per_dim: float = _doc(-0.5, "target entropy = this * |A| (SAPO)")
     # -- diagnostics ---------------------------------------------------------------------
-    grad_var_groups: int = 4  # K env groups for the actor-gradient variance
-    max_grad_norm_skip: float = 1e6  # an actor/critic update with a larger gradient norm is skipped
+    grad_var_groups: int = _doc(4, "K env groups for the actor-gradient variance (must divide num_envs)")
+    max_grad_norm_skip: float = _doc(1e6, "an actor or critic update whose gradient norm exceeds this is skipped")
 
-    extra: dict = field(default_factory=dict)
-
-    def validate(self) -> AlgoConfig:
-        problems = []
-        if self.num_envs < 1 or self.horizon < 1:
-            problems.append("num_envs and horizon must be >= 1")
-        if not 0.0 < self.gamma <= 1.0:
-            problems.append(f"gamma must be in (0, 1], got {self.gamma}")
-        if not 0.0 < self.lam < 1.0 and not (self.lam == 1.0 and not self.adaptive_lambda):
-            problems.append(f"lam must be in (0, 1) (1 allowed without adaptation), got {self.lam}")
-        if self.actor_return not in ("h_step", "td_lambda"):
-            problems.append(f"actor_return must be h_step or td_lambda, got {self.actor_return!r}")
-        if self.optimizer not in ("adam", "adamw"):
-            problems.append(f"optimizer must be adam or adamw, got {self.optimizer!r}")
-        if self.lr_schedule not in ("linear", "constant"):
-            problems.append(f"lr_schedule must be linear or constant, got {self.lr_schedule!r}")
-        for name in ("actor_lr", "critic_lr", "lambda_lr", "alpha_lr", "actor_grad_clip", "critic_grad_clip"):
-            if not getattr(self, name) > 0.0:
-                problems.append(f"{name} must be > 0")
-        if self.critic_iterations < 0 or self.critic_minibatches < 1 or self.lambda_batches < 1:
-            problems.append("critic_iterations >= 0, critic_minibatches >= 1, lambda_batches >= 1 required")
-        if self.lambda_iterations <= 0.0:
-            problems.append("lambda_iterations (m_lambda) must be > 0")
-        if self.lambda_iterations < 1.0 and not float(1.0 / self.lambda_iterations).is_integer():
-            problems.append("a fractional lambda_iterations must be 1/k (0.5, 0.25, ...)")
-        if self.grad_var_groups < 2 or self.num_envs % self.grad_var_groups:
-            problems.append(f"grad_var_groups must be >= 2 and divide num_envs={self.num_envs}")
-        if self.num_critics < 1:
-            problems.append("num_critics must be >= 1")
+    def __post_init__(self) -> None:
+        problems = _problems(self)
         if problems:
             raise ValueError("; ".join(problems))
-        return self
 
     def replace(self, **changes) -> AlgoConfig:
+        """A copy with ``changes`` applied (validated again)."""
         return dataclasses.replace(self, **changes)
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
 
     @classmethod
     def from_dict(cls, data: dict) -> AlgoConfig:
-        """Inverse of ``dataclasses.asdict`` after a JSON round trip (lists back to tuples)."""
+        """Inverse of :meth:`as_dict` after a JSON round trip (lists back to tuples)."""
+        known = {f.name for f in dataclasses.fields(cls)}
+        data = {k: v for k, v in data.items() if k not in _REMOVED_FIELDS}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(f"unknown hyperparameter(s): {', '.join(unknown)}")
         return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
+
+    @classmethod
+    def help(cls, name: str) -> str:
+        return next(f.metadata.get("help", "") for f in dataclasses.fields(cls) if f.name == name)
+
+
+def _problems(cfg: AlgoConfig) -> list[str]:
+    """Every range and type violation of ``cfg``, each as one phrase naming the valid range."""
+    problems = []
+    hints = get_type_hints(AlgoConfig)
+    for f in dataclasses.fields(cfg):
+        value, hint = getattr(cfg, f.name), hints[f.name]
+        choices = get_args(hint) if getattr(hint, "__origin__", None) is Literal else None
+        if choices and value not in choices:
+            problems.append(f"{f.name} must be one of {', '.join(choices)}, got {value!r}")
+        elif hint is bool and not isinstance(value, bool):
+            problems.append(f"{f.name} must be true or false, got {value!r}")
+        elif hint is int and (isinstance(value, bool) or not isinstance(value, int)):
+            problems.append(f"{f.name} must be an integer, got {value!r}")
+        elif hint in (float, float | None) and value is not None:
+            if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+                problems.append(f"{f.name} must be a finite number, got {value!r}")
+    if problems:
+        return problems  # ranges below assume the types are right
+
+    def need(ok: bool, text: str) -> None:
+        if not ok:
+            problems.append(text)
+
+    need(cfg.num_envs >= 1 and cfg.horizon >= 1, "num_envs and horizon must be >= 1")
+    need(0.0 < cfg.gamma <= 1.0, f"gamma must be in (0, 1], got {cfg.gamma}")
+    if cfg.adaptive_lambda:
+        need(0.0 < cfg.lam < 1.0, f"lam must be in (0, 1) with adaptive lambda, got {cfg.lam}")
+    else:
+        need(0.0 <= cfg.lam <= 1.0, f"lam must be in [0, 1], got {cfg.lam}")
+    need(all(isinstance(w, int) and w >= 1 for w in cfg.actor_hidden + cfg.critic_hidden), "hidden widths must be >= 1")
+    need(cfg.num_critics >= 1, "num_critics must be >= 1")
+    if cfg.target_critic_alpha is not None:
+        alpha = cfg.target_critic_alpha
+        need(0.0 <= alpha <= 1.0, f"target_critic_alpha must be in [0, 1], got {alpha}")
+    for name in ("actor_lr", "critic_lr", "lambda_lr", "alpha_lr", "init_alpha"):
+        need(getattr(cfg, name) > 0.0, f"{name} must be > 0, got {getattr(cfg, name)}")
+    for name in ("actor_grad_clip", "critic_grad_clip", "alpha_grad_clip", "max_grad_norm_skip"):
+        need(getattr(cfg, name) > 0.0, f"{name} must be > 0, got {getattr(cfg, name)}")
+    for name in ("weight_decay", "lambda_weight_decay", "alpha_weight_decay"):
+        need(getattr(cfg, name) >= 0.0, f"{name} must be >= 0, got {getattr(cfg, name)}")
+    need(0.0 <= cfg.min_lr <= min(cfg.actor_lr, cfg.critic_lr), "min_lr must be in [0, min(actor_lr, critic_lr)]")
+    for name in ("betas", "lambda_betas"):
+        need(all(0.0 <= b < 1.0 for b in getattr(cfg, name)), f"{name} must lie in [0, 1), got {getattr(cfg, name)}")
+    need(cfg.critic_iterations >= 0, "critic_iterations (m_critic) must be >= 0")
+    need(cfg.critic_minibatches >= 1 and cfg.lambda_batches >= 1, "critic_minibatches and lambda_batches must be >= 1")
+    need(cfg.max_epochs >= 0, "max_epochs must be >= 0")
+    m = cfg.lambda_iterations
+    need(m > 0.0, "lambda_iterations (m_lambda) must be > 0")
+    if 0.0 < m < 1.0:
+        need(float(1.0 / m).is_integer(), "a fractional lambda_iterations must be 1/k (0.5, 0.25, ...)")
+    elif m >= 1.0:
+        need(float(m).is_integer(), "lambda_iterations >= 1 must be an integer")
+    need(
+        cfg.grad_var_groups >= 2 and cfg.num_envs % cfg.grad_var_groups == 0,
+        f"grad_var_groups must be >= 2 and divide num_envs={cfg.num_envs}",
+    )
+    return problems
 
 
 def _shac(**changes) -> AlgoConfig:
@@ -104,9 +185,11 @@ def _sapo(**changes) -> AlgoConfig:
     base = AlgoConfig(
         algo="sapo",
         soft=True,
+        network_style="mineral",
         num_critics=2,
         target_critic_alpha=None,
         optimizer="adamw",
+        weight_decay=0.01,
         actor_lr=2e-3,
         critic_lr=5e-4,
         actor_grad_clip=0.5,

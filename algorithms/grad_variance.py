@@ -24,24 +24,16 @@ tr(Sigma) / m exactly. Two rescalings follow and are provided:
     batch_gradient_variance   = Var_K / K   estimates tr(Sigma) / N, the variance of
                                             the full-batch update gradient g_bar.
 
-Always state K and N next to any of the three numbers.
+Always state K and N next to any of the three numbers. The group gradients themselves come
+from one backward pass (``FirstOrderActorCritic.group_gradients``), taken before the optimiser
+step so that they are the gradients of the update.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
-
-import torch
 from torch import Tensor
 
-__all__ = [
-    "gradient_variance",
-    "per_env_gradient_variance",
-    "batch_gradient_variance",
-    "group_losses",
-    "gradients_of_losses",
-    "group_gradients",
-]
+__all__ = ["gradient_variance", "per_env_gradient_variance", "batch_gradient_variance"]
 
 
 def gradient_variance(group_grads: Tensor) -> Tensor:
@@ -70,42 +62,3 @@ def per_env_gradient_variance(group_grads: Tensor, group_size: int) -> Tensor:
 def batch_gradient_variance(group_grads: Tensor) -> Tensor:
     """Estimate of tr Cov of the full-batch (mean over all N envs) gradient: Var_K / K."""
     return gradient_variance(group_grads) / group_grads.shape[0]
-
-
-def group_losses(loss_per_env: Tensor, num_groups: int) -> list[Tensor]:
-    """Split (N,) per-env losses into K contiguous equal groups; return each group's mean."""
-    if loss_per_env.dim() != 1:
-        raise ValueError(f"loss_per_env must be (N,), got shape {tuple(loss_per_env.shape)}")
-    num_envs = loss_per_env.shape[0]
-    if num_groups < 2 or num_envs % num_groups != 0:
-        raise ValueError(f"need K >= 2 groups dividing N; got N={num_envs}, K={num_groups}")
-    return list(loss_per_env.reshape(num_groups, num_envs // num_groups).mean(dim=1).unbind(0))
-
-
-def gradients_of_losses(losses: Sequence[Tensor], params: Iterable[Tensor]) -> Tensor:
-    """(K, P) flattened gradients of each scalar loss w.r.t. ``params``.
-
-    Uses ``torch.autograd.grad(..., retain_graph=True)`` so the caller can still call
-    ``backward`` on the full loss afterwards; costs one backward pass per loss.
-    Parameters that a loss does not reach contribute zeros. Rows are detached.
-    """
-    params = [p for p in params if p.requires_grad]
-    rows = []
-    for loss in losses:
-        grads = torch.autograd.grad(loss, params, retain_graph=True, allow_unused=True)
-        rows.append(
-            torch.cat(
-                [(g if g is not None else torch.zeros_like(p)).reshape(-1) for g, p in zip(grads, params, strict=True)]
-            )
-        )
-    return torch.stack(rows, dim=0).detach()
-
-
-def group_gradients(loss_per_env: Tensor, params: Iterable[Tensor], num_groups: int) -> Tensor:
-    """(K, P) actor gradients of the K group losses (each the mean of its envs' losses).
-
-    ``loss_per_env`` is the (N,) per-env actor loss, e.g.
-    ``returns.actor_loss_per_env``; its mean is the actor loss. Feed the result to
-    ``gradient_variance`` (or the rescaled variants).
-    """
-    return gradients_of_losses(group_losses(loss_per_env, num_groups), params)

@@ -1,16 +1,19 @@
 """Actor and critic networks for SHAC / SAPO and their TD-lambda variants.
 
-The architecture follows DiffRL's SHAC (the paper's baseline [13]): ELU MLPs with a
-LayerNorm on every hidden layer, an actor with hidden sizes [128, 64, 32] and a
-state-independent log-std initialised at -1.0, and a critic with hidden sizes
-[64, 64]. Layer order: DiffRL builds each hidden layer as Linear -> ELU -> LayerNorm
-(checked against its models/actor.py and models/critic.py); that is the default
-here, and ``norm_before_activation=True`` gives Linear -> LayerNorm -> ELU instead.
-Initialisation also follows DiffRL: the actor keeps torch's default Linear init,
-the critic uses orthogonal weights (gain sqrt(2)) and zero biases.
+Two styles (``AlgoConfig.network_style``), each that of the reference code of its algorithm:
 
-Actions are sampled with the reparameterisation ``mean + std * eps`` so that the
-pathwise gradient (eq. 2-4) flows from the simulator's rewards back into the actor.
+* ``diffrl`` (SHAC and its TD variants; DiffRL's ``models/actor.py`` and ``models/critic.py``):
+  every hidden layer is Linear -> ELU -> LayerNorm; the actor keeps torch's default Linear
+  init, the critic uses orthogonal weights (gain sqrt(2)) and zero biases.
+* ``mineral`` (SAPO and its TD variants; Mineral's ``DFlexAntSHAC2``/``DFlexAntSAPO`` configs):
+  every hidden layer is Linear -> LayerNorm -> SiLU, and every Linear (hidden layers, the actor's
+  mean and log-std heads, the critic's output) has orthogonal weights of gain 1 and zero biases.
+
+Actions are sampled with the reparameterisation ``u = mean + std * eps`` so that the pathwise
+gradient (eq. 2-4) flows from the simulator's rewards back into the actor, and both actors
+return ``a = tanh(u)``: the simulator only ever sees actions in (-1, 1) and the gradient is never
+cut by a clamp (DiffRL and Mineral pass ``tanh(actions)`` to the env for SHAC; SAPO's squashed
+Gaussian has the tanh inside the distribution).
 """
 
 from __future__ import annotations
@@ -22,12 +25,22 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-__all__ = ["MLP", "DeterministicActor", "GaussianActor", "SquashedGaussianActor", "Critic"]
+__all__ = ["MLP", "GaussianActor", "SquashedGaussianActor", "Critic", "STYLES"]
 
-ACTOR_HIDDEN = (128, 64, 32)
-CRITIC_HIDDEN = (64, 64)
 _LOG_2 = math.log(2.0)
 _HALF_LOG_2PI = 0.5 * math.log(2.0 * math.pi)
+
+# MLP keyword arguments of each style: (actor, critic)
+STYLES: dict[str, tuple[dict, dict]] = {
+    "diffrl": (
+        {"activation": nn.ELU, "norm_before_activation": False, "init_gain": None},
+        {"activation": nn.ELU, "norm_before_activation": False, "init_gain": math.sqrt(2.0)},
+    ),
+    "mineral": (
+        {"activation": nn.SiLU, "norm_before_activation": True, "init_gain": 1.0},
+        {"activation": nn.SiLU, "norm_before_activation": True, "init_gain": 1.0},
+    ),
+}
 
 
 class MLP(nn.Sequential):
@@ -73,41 +86,20 @@ class MLP(nn.Sequential):
                     nn.init.zeros_(m.bias)
 
 
-class DeterministicActor(nn.Module):
-    """a = mu_theta(s). ``deterministic`` is accepted for interface parity and ignored."""
-
-    def __init__(self, obs_dim: int, act_dim: int, hidden_sizes: Sequence[int] = ACTOR_HIDDEN, **mlp_kwargs):
-        super().__init__()
-        self.mu_net = MLP(obs_dim, hidden_sizes, act_dim, **mlp_kwargs)
-
-    def forward(self, obs: Tensor, deterministic: bool = True) -> Tensor:
-        return self.mu_net(obs)
-
-
 class GaussianActor(nn.Module):
-    """SHAC's stochastic actor: a ~ N(mu_theta(s), diag(exp(logstd)^2)).
+    """SHAC's stochastic actor: u ~ N(mu_theta(s), diag(exp(logstd)^2)), action a = tanh(u).
 
-    ``logstd`` is a learnable, state-independent vector (DiffRL init -1.0). Sampling
-    is ``mean + std * eps`` with eps ~ N(0, I) drawn outside the graph, so the action
-    is differentiable w.r.t. the MLP parameters and ``logstd`` (pathwise gradient).
-    The mean is not squashed; environments clip actions themselves, as in DiffRL.
+    ``logstd`` is a learnable, state-independent vector (DiffRL init -1.0). Sampling is
+    ``mean + std * eps`` with eps ~ N(0, I) drawn outside the graph, so the action is
+    differentiable w.r.t. the MLP parameters and ``logstd`` (pathwise gradient). The tanh is
+    DiffRL's ``env.step(torch.tanh(actions))``; the log-prob is that of the Gaussian u (SHAC
+    uses it for logging only, as DiffRL has none).
     """
 
-    def __init__(
-        self,
-        obs_dim: int,
-        act_dim: int,
-        hidden_sizes: Sequence[int] = ACTOR_HIDDEN,
-        init_logstd: float = -1.0,
-        **mlp_kwargs,
-    ):
+    def __init__(self, obs_dim: int, act_dim: int, hidden_sizes: Sequence[int], init_logstd: float = -1.0, **mlp):
         super().__init__()
-        self.mu_net = MLP(obs_dim, hidden_sizes, act_dim, **mlp_kwargs)
+        self.mu_net = MLP(obs_dim, hidden_sizes, act_dim, **mlp)
         self.logstd = nn.Parameter(torch.full((act_dim,), float(init_logstd)))
-
-    def distribution(self, obs: Tensor) -> torch.distributions.Normal:
-        """The action distribution (for log-probs / entropy logging)."""
-        return torch.distributions.Normal(self.mu_net(obs), self.logstd.exp())
 
     def head(self, obs: Tensor) -> Tensor:
         """``[mean, log_std]`` per sample (log_std broadcast): every way theta reaches an action."""
@@ -116,62 +108,59 @@ class GaussianActor(nn.Module):
 
     @staticmethod
     def act(head: Tensor, eps: Tensor) -> tuple[Tensor, Tensor]:
-        """(action, log-prob) for noise ``eps`` (zeros: the deterministic action)."""
+        """(tanh(u), log-prob of u) for noise ``eps`` (zeros: the deterministic action tanh(mean))."""
         mean, log_std = head.chunk(2, dim=-1)
         log_prob = (-0.5 * eps.pow(2) - log_std - _HALF_LOG_2PI).sum(dim=-1)
-        return mean + log_std.exp() * eps, log_prob
+        return torch.tanh(mean + log_std.exp() * eps), log_prob
 
-    def forward(self, obs: Tensor, deterministic: bool = False) -> Tensor:
+    def forward(self, obs: Tensor, deterministic: bool = False) -> tuple[Tensor, Tensor]:
+        """(action, log-prob) for observations ``obs``; fresh noise unless ``deterministic``."""
         head = self.head(obs)
-        eps = torch.zeros_like(head[..., : self.logstd.numel()])
+        eps = torch.zeros_like(head[..., : head.shape[-1] // 2])
         if not deterministic:
             eps.normal_()
-        return self.act(head, eps)[0]
+        return self.act(head, eps)
 
 
 class SquashedGaussianActor(nn.Module):
     """SAPO's actor: a = tanh(u), u ~ N(mean(s), diag(std(s)^2)), std state-dependent.
 
-    The MLP outputs ``2 * act_dim`` numbers: the mean and the log-std of u; the log-std
-    is clamped to ``log_std_bounds`` (default [-5, 2]) to keep std away from 0 and inf.
-    ``forward`` returns ``(action, log_prob)`` with ``log_prob`` of shape ``obs.shape[:-1]``,
-    summed over action dimensions and including the tanh change of variables::
+    A trunk MLP and two linear heads (mean and log-std of u, as Mineral's ``mu`` and ``sigma``
+    heads; with ``init_gain`` each head gets its own orthogonal init). The log-std is clamped to
+    ``log_std_bounds`` ([-5, 2], Mineral's minlogstd/maxlogstd). The log-prob is summed over
+    action dimensions and includes the tanh change of variables::
 
         log pi(a|s) = sum_i [ log N(u_i; mean_i, std_i) - log(1 - tanh(u_i)^2) ]
         log(1 - tanh(u)^2) = 2 * (log 2 - u - softplus(-2u))
 
     The right-hand form is exact and never evaluates log(0) when tanh(u) rounds to +-1.
-    In deterministic mode the action is ``tanh(mean)`` and the log-prob is evaluated
-    at u = mean.
+    In deterministic mode the action is ``tanh(mean)``.
     """
 
     def __init__(
         self,
         obs_dim: int,
         act_dim: int,
-        hidden_sizes: Sequence[int] = ACTOR_HIDDEN,
+        hidden_sizes: Sequence[int],
         log_std_bounds: tuple[float, float] = (-5.0, 2.0),
-        **mlp_kwargs,
+        **mlp,
     ):
         super().__init__()
         self.act_dim = act_dim
         self.log_std_bounds = log_std_bounds
-        self.net = MLP(obs_dim, hidden_sizes, 2 * act_dim, **mlp_kwargs)
-
-    def dist_params(self, obs: Tensor) -> tuple[Tensor, Tensor]:
-        """(mean, log_std) of the pre-tanh Gaussian, log_std already clamped."""
-        mean, log_std = self.net(obs).split(self.act_dim, dim=-1)
-        lo, hi = self.log_std_bounds
-        return mean, log_std.clamp(lo, hi)
+        self.net = MLP(obs_dim, hidden_sizes, 2 * act_dim, **mlp)
+        gain = mlp.get("init_gain")
+        if gain is not None:  # the two heads are separate matrices in Mineral: orthogonal each
+            last = self.net[-1]
+            with torch.no_grad():
+                for rows in (slice(0, act_dim), slice(act_dim, 2 * act_dim)):
+                    nn.init.orthogonal_(last.weight[rows], gain=gain)
 
     def head(self, obs: Tensor) -> Tensor:
         """``[mean, clamped log_std]`` of the pre-tanh Gaussian: every way theta reaches an action."""
-        return torch.cat(self.dist_params(obs), dim=-1)
-
-    def forward(self, obs: Tensor, deterministic: bool = False) -> tuple[Tensor, Tensor]:
-        mean, log_std = self.dist_params(obs)
-        eps = torch.zeros_like(mean) if deterministic else torch.randn_like(mean)
-        return self.act(torch.cat((mean, log_std), dim=-1), eps)
+        mean, log_std = self.net(obs).split(self.act_dim, dim=-1)
+        lo, hi = self.log_std_bounds
+        return torch.cat((mean, log_std.clamp(lo, hi)), dim=-1)
 
     @staticmethod
     def act(head: Tensor, eps: Tensor) -> tuple[Tensor, Tensor]:
@@ -185,23 +174,22 @@ class SquashedGaussianActor(nn.Module):
         log_prob = (gauss_logp - log_det).sum(dim=-1)
         return torch.tanh(u), log_prob
 
+    def forward(self, obs: Tensor, deterministic: bool = False) -> tuple[Tensor, Tensor]:
+        """(action, log-prob) for observations ``obs``; fresh noise unless ``deterministic``."""
+        head = self.head(obs)
+        eps = torch.zeros_like(head[..., : head.shape[-1] // 2])
+        if not deterministic:
+            eps.normal_()
+        return self.act(head, eps)
+
 
 class Critic(nn.Module):
-    """V_phi(s): MLP [64, 64] -> 1, orthogonal init (gain sqrt(2)) as in DiffRL.
+    """V_phi(s): an MLP -> 1. Returns values of shape ``obs.shape[:-1]`` (the trailing 1 squeezed),
+    so a (T, N, obs_dim) batch gives (T, N) values, matching ``returns.py``."""
 
-    Returns values of shape ``obs.shape[:-1]`` (the trailing 1 is squeezed) so that a
-    (T, N, obs_dim) batch gives (T, N) values, matching ``returns.py``.
-    """
-
-    def __init__(
-        self,
-        obs_dim: int,
-        hidden_sizes: Sequence[int] = CRITIC_HIDDEN,
-        init_gain: float | None = math.sqrt(2.0),
-        **mlp_kwargs,
-    ):
+    def __init__(self, obs_dim: int, hidden_sizes: Sequence[int], **mlp):
         super().__init__()
-        self.v_net = MLP(obs_dim, hidden_sizes, 1, init_gain=init_gain, **mlp_kwargs)
+        self.v_net = MLP(obs_dim, hidden_sizes, 1, **mlp)
 
     def forward(self, obs: Tensor) -> Tensor:
         return self.v_net(obs).squeeze(-1)

@@ -29,10 +29,11 @@ class RunningMeanStd(nn.Module):
     Args:
         shape: shape of one sample (e.g. ``(obs_dim,)``).
         epsilon: added to the variance before the square root in ``normalize``.
-        clip: ``normalize`` clamps its output to [-clip, clip].
+        clip: ``normalize`` clamps its output to [-clip, clip]; None (the default, as DiffRL and
+            Mineral) does not clamp, so no observation's pathwise gradient is cut.
     """
 
-    def __init__(self, shape: Sequence[int] = (), epsilon: float = 1e-5, clip: float = 5.0):
+    def __init__(self, shape: Sequence[int] = (), epsilon: float = 1e-5, clip: float | None = None):
         super().__init__()
         self.shape = tuple(shape)
         self.epsilon = epsilon
@@ -80,10 +81,11 @@ class RunningMeanStd(nn.Module):
         self.count.copy_(total)
 
     def normalize(self, x: Tensor) -> Tensor:
-        """clamp((x - mean) / sqrt(var + epsilon), -clip, clip), in x's dtype, differentiable in x."""
+        """(x - mean) / sqrt(var + epsilon) (clamped to +-clip if set), in x's dtype, differentiable in x."""
         mean = self.mean.to(dtype=x.dtype)
         std = torch.sqrt(self.var + self.epsilon).to(dtype=x.dtype)
-        return ((x - mean) / std).clamp(-self.clip, self.clip)
+        out = (x - mean) / std
+        return out if self.clip is None else out.clamp(-self.clip, self.clip)
 
     def forward(self, x: Tensor) -> Tensor:
         return self.normalize(x)

@@ -253,7 +253,7 @@ def _algo_config(args):
         if value is not None and f.name not in ("algo", "extra"):
             changes[f.name] = tuple(value) if isinstance(value, list) else value
     try:
-        return cfg.replace(**changes).validate()
+        return cfg.replace(**changes)
     except ValueError as exc:
         raise BadInput(f"bad configuration: {exc}") from None
 

@@ -155,7 +155,7 @@ def train(
     elif config_path.exists():
         raise RunError(f"{run_dir} already holds a run; pass --resume to continue it or choose another --out")
     else:
-        algo_config = dataclasses.replace(algo_config, max_epochs=algo_config.max_epochs or epochs).validate()
+        algo_config = algo_config.replace(max_epochs=algo_config.max_epochs or epochs)
         config = {
             "task": task,
             "backend": backend,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import json
 
 import pytest
@@ -12,6 +13,7 @@ pytest.importorskip("newton")
 from algorithms.actor_critic import FirstOrderActorCritic  # noqa: E402
 from algorithms.config import PRESETS, preset  # noqa: E402
 from algorithms.grad_variance import gradient_variance  # noqa: E402
+from algorithms.returns import actor_loss_from_returns, critic_targets, segment_starts  # noqa: E402
 from backends import make  # noqa: E402
 from harness.cli import main as cli  # noqa: E402
 from harness.train import RunError, save_checkpoint, train  # noqa: E402
@@ -29,7 +31,7 @@ def env():
 
 def _algo(name: str, seed: int = 0, **changes) -> FirstOrderActorCritic:
     torch.manual_seed(seed)
-    cfg = preset(name).replace(num_envs=N, horizon=H, critic_iterations=2, max_epochs=10, **changes)
+    cfg = preset(name).replace(**{"num_envs": N, "horizon": H, "critic_iterations": 2, "max_epochs": 10, **changes})
     return FirstOrderActorCritic(cfg, obs_dim=37, act_dim=8)
 
 
@@ -54,6 +56,150 @@ def test_tdfixed_with_lambda_one_is_shac(env):
     # and lambda < 1 really changes the loss (the comparison above can fail)
     _, loss_095, _ = _window_loss_grad(_algo("shac-tdfixed"), env, start)
     assert not torch.allclose(loss_095, loss_shac, rtol=1e-4)
+
+
+# ---------------------------------------------------------------- audit fixes (issue 7, 1a-1e)
+
+
+def test_logged_gradient_variance_is_that_of_the_update(env):
+    """1a: the group gradients are taken at the weights that produced the update, not after it."""
+    env.reset()
+    start = env.state_dict()
+    algo = _algo("shac")
+    twin = copy.deepcopy(algo)
+    torch.manual_seed(5)
+    metrics = algo.train_epoch(env)
+    env.load_state_dict(start)
+    torch.manual_seed(5)
+    w = twin.rollout(env)
+    twin.actor_opt.zero_grad()
+    twin.actor_loss(w).backward()
+    groups = twin.group_gradients(w)
+    full = torch.cat([p.grad.reshape(-1) for p in twin.actor.parameters()])
+    assert torch.allclose(groups.mean(0), full, rtol=1e-4, atol=1e-6 * full.abs().max())
+    assert metrics["actor_grad_var"] == pytest.approx(float(gradient_variance(groups)), rel=1e-5)
+
+
+def test_group_gradients_equal_one_backward_per_group(env):
+    """The head trick gives exactly the gradients of K separate group losses (reference: K backwards).
+
+    Envs are independent, so group k's loss (the mean over its envs) has the gradient of K times the
+    actor loss with every other env's rewards and bootstrap values detached.
+    """
+    env.reset()
+    start = env.state_dict()
+    algo = _algo("sapo-tdadpt")
+    base = copy.deepcopy(algo)
+    k = algo.cfg.grad_var_groups
+    torch.manual_seed(2)
+    w = algo.rollout(env)
+    algo.actor_loss(w).backward()
+    fast = algo.group_gradients(w)
+    for g in range(k):
+        twin = copy.deepcopy(base)
+        env.load_state_dict(start)
+        torch.manual_seed(2)
+        again = twin.rollout(env, track_heads=False)
+        mine = _group_mask(N, g, N // k)
+        rewards = torch.where(mine, again.rewards, again.rewards.detach())
+        values = torch.where(mine, again.actor_next_values, again.actor_next_values.detach())
+        starts = segment_starts(again.terminated, again.truncated)
+        loss = actor_loss_from_returns(twin.actor_returns(again, rewards, values), starts, H)
+        grads = torch.autograd.grad(loss, list(twin.actor.parameters()), allow_unused=True)
+        ref = k * torch.cat([gr.reshape(-1) for gr in grads])
+        assert torch.allclose(fast[g], ref, rtol=1e-3, atol=1e-5 * ref.abs().max()), g
+
+
+def _group_mask(n, g, size):
+    mask = torch.zeros(n, dtype=torch.bool)
+    mask[g * size : (g + 1) * size] = True
+    return mask[None, :]
+
+
+def test_shac_actions_reach_the_simulator_through_tanh(env, monkeypatch):
+    """1b: no clamp cuts the gradient; actions the env sees are tanh(u) even when |u| > 1."""
+    env.reset()
+    algo = _algo("shac")
+    with torch.no_grad():
+        algo.actor.mu_net[-1].bias.fill_(3.0)  # u around 3: a clamp to [-1, 1] would zero every gradient
+    seen = []
+    real_step = env.step
+
+    def recording_step(actions):
+        seen.append(actions.detach().clone())
+        return real_step(actions)
+
+    monkeypatch.setattr(env, "step", recording_step)
+    w = algo.rollout(env)
+    monkeypatch.undo()
+    actions = torch.stack(seen)
+    assert torch.all(actions.abs() < 1.0) and float(actions.mean()) > 0.9
+    algo.actor_loss(w).backward()
+    bias_grad = algo.actor.mu_net[-1].bias.grad
+    assert bias_grad is not None and bias_grad.abs().sum() > 0
+
+
+def test_sapo_entropy_bonus_and_temperature_follow_mineral(env):
+    """1c: bonus alpha (H + |T|) / (2|T|) in the return at the rollout's alpha; critic targets at the
+    alpha after the temperature update; temperature gradient alpha |T| (H - T)."""
+    env.reset()
+    algo = _algo("sapo", alpha_grad_clip=1e9)
+    t_abs = 0.5 * algo.act_dim
+    alpha0 = algo.alpha
+    w = algo.rollout(env)
+    bonus = (w.rewards.detach() - w.env_rewards) / alpha0
+    torch.testing.assert_close(bonus, (w.entropies + t_abs) / (2 * t_abs), rtol=1e-5, atol=1e-5)
+    assert w.entropies.std() > 0  # a one-sample estimate per env and step, not a constant
+    entropy = float(w.entropies.mean())
+    algo.alpha_opt.zero_grad()
+    algo.update_alpha(w)
+    assert float(algo.log_alpha.grad) == pytest.approx(alpha0 * t_abs * (entropy + t_abs), rel=1e-5)
+    alpha1 = algo.alpha
+    assert alpha1 != alpha0
+    expected = w.env_rewards + alpha1 * (w.entropies + t_abs) / (2 * t_abs)
+    torch.testing.assert_close(algo.target_rewards(w), expected)
+
+
+def test_sapo_critic_loss_is_averaged_over_the_critics(env, monkeypatch):
+    """1c: the two critics' squared errors are averaged (Mineral), not summed."""
+    env.reset()
+    algo = _algo("sapo", critic_iterations=1, critic_minibatches=1, critic_grad_clip=1e9)
+    w = algo.rollout(env)
+    targets = critic_targets(
+        algo.target_rewards(w), w.target_next_values, w.terminated, w.truncated, algo.cfg.gamma, algo.lam.detach()
+    )
+    predicted = algo.values(w.obs, target=False)
+    expected = (predicted - targets).pow(2).mean()
+    ref = torch.autograd.grad(expected, list(algo.critics.parameters()))
+    captured = []
+    monkeypatch.setattr(
+        algo.critic_opt, "step", lambda: captured.append([p.grad.clone() for p in algo.critics.parameters()])
+    )
+    loss, _ = algo.update_critic(w)
+    assert loss == pytest.approx(float(expected.detach()), rel=1e-5)
+    for got, want in zip(captured[0], ref, strict=True):
+        torch.testing.assert_close(got, want, rtol=1e-4, atol=1e-7)
+
+
+def test_tdfixed_with_lambda_one_trains_and_starts_like_shac(tmp_path):
+    """1d: --lam 1.0 stores no infinite phi, and its first actor loss is SHAC's."""
+    common = ["--task", "ant", "--backend", "newton", "--epochs", "1", "--num-envs", "4", "--horizon", "4"]
+    common += ["--critic-iterations", "1", "--seed", "7"]
+    assert cli(["train", "--algo", "shac", *common, "--out", str(tmp_path / "shac")]) == 0
+    assert cli(["train", "--algo", "shac-tdfixed", "--lam", "1.0", *common, "--out", str(tmp_path / "td1")]) == 0
+    first = [_rows(tmp_path / name / "metrics.jsonl")[0]["actor_loss"] for name in ("shac", "td1")]
+    assert first[1] == pytest.approx(first[0], rel=1e-5)
+    assert _rows(tmp_path / "td1" / "metrics.jsonl")[0]["lam"] == 1.0
+
+
+def test_lambda_optimiser_has_no_hidden_weight_decay():
+    """1e: with a zero gradient phi stays put (torch's AdamW default would pull it towards 0)."""
+    algo = _algo("shac-tdadpt")
+    assert algo.lambda_opt.param_groups[0]["weight_decay"] == algo.cfg.lambda_weight_decay == 0.0
+    before = float(algo.phi.detach())
+    algo.phi.grad = torch.zeros_like(algo.phi)
+    algo.lambda_opt.step()
+    assert float(algo.phi.detach()) == before
 
 
 def test_lambda_update_moves_only_lambda(env):

@@ -3,14 +3,7 @@
 import pytest
 import torch
 
-from algorithms.grad_variance import (
-    batch_gradient_variance,
-    gradient_variance,
-    group_gradients,
-    group_losses,
-    per_env_gradient_variance,
-)
-from algorithms.networks import GaussianActor
+from algorithms.grad_variance import batch_gradient_variance, gradient_variance, per_env_gradient_variance
 
 DT = torch.float64
 
@@ -36,53 +29,11 @@ def test_zero_for_identical_groups_and_positive_otherwise():
     assert gradient_variance(perturbed).item() > 0.0
 
 
-def test_group_gradients_linear_model():
-    # loss_n = w . x_n  =>  per-env gradient x_n, group gradient = mean of x_n in the group.
-    gen = torch.Generator().manual_seed(2)
-    x = torch.randn(8, 3, dtype=DT, generator=gen)
-    w = torch.randn(3, dtype=DT, generator=gen, requires_grad=True)
-    unused = torch.zeros(2, dtype=DT, requires_grad=True)
-    grads = group_gradients(x @ w, [w, unused], num_groups=4)
-    assert grads.shape == (4, 5)
-    torch.testing.assert_close(grads[:, :3], x.reshape(4, 2, 3).mean(1))
-    assert torch.all(grads[:, 3:] == 0)
-    assert not grads.requires_grad
-
-
-def test_identical_envs_give_zero_variance_through_a_network():
-    torch.manual_seed(3)
-    actor = GaussianActor(4, 2).double()
-    obs = torch.randn(1, 4, dtype=DT).expand(8, 4)
-    loss_per_env = actor(obs, deterministic=True).pow(2).sum(-1)
-    grads = group_gradients(loss_per_env, actor.parameters(), num_groups=4)
-    assert grads.abs().sum() > 0
-    assert gradient_variance(grads).item() == pytest.approx(0.0, abs=1e-20)
-    distinct = actor(torch.randn(8, 4, dtype=DT), deterministic=True).pow(2).sum(-1)
-    assert gradient_variance(group_gradients(distinct, actor.parameters(), 4)).item() > 0
-
-
-def test_graph_survives_for_the_real_backward():
-    w = torch.ones(3, dtype=DT, requires_grad=True)
-    loss_per_env = (torch.arange(6, dtype=DT).reshape(6, 1) * w).pow(2).sum(-1)
-    group_gradients(loss_per_env, [w], num_groups=2)
-    loss_per_env.mean().backward()  # would raise if the graph had been freed
-    assert w.grad is not None
-
-
-def test_group_losses_mean_is_the_full_loss():
-    losses = torch.randn(12, dtype=DT)
-    groups = group_losses(losses, 3)
-    torch.testing.assert_close(torch.stack(groups), losses.reshape(3, 4).mean(1))
-    torch.testing.assert_close(torch.stack(groups).mean(), losses.mean())
-
-
 def test_invalid_groupings_raise():
     with pytest.raises(ValueError):
-        group_losses(torch.zeros(10), 3)
-    with pytest.raises(ValueError):
-        group_losses(torch.zeros(10), 1)
-    with pytest.raises(ValueError):
         gradient_variance(torch.zeros(1, 4))
+    with pytest.raises(ValueError):
+        gradient_variance(torch.zeros(4))
 
 
 def test_rescalings_are_unbiased_for_iid_envs():
