@@ -86,7 +86,19 @@ class MLP(nn.Sequential):
                     nn.init.zeros_(m.bias)
 
 
-class GaussianActor(nn.Module):
+class _Actor(nn.Module):
+    """What both actors share: ``head(obs)`` gives ``[mean, log_std]``, ``act(head, eps)`` the action."""
+
+    def forward(self, obs: Tensor, deterministic: bool = False) -> tuple[Tensor, Tensor]:
+        """(action, log-prob) for observations ``obs``; fresh noise unless ``deterministic``."""
+        head = self.head(obs)
+        eps = torch.zeros_like(head[..., : head.shape[-1] // 2])
+        if not deterministic:
+            eps.normal_()
+        return self.act(head, eps)
+
+
+class GaussianActor(_Actor):
     """SHAC's stochastic actor: u ~ N(mu_theta(s), diag(exp(logstd)^2)), action a = tanh(u).
 
     ``logstd`` is a learnable, state-independent vector (DiffRL init -1.0). Sampling is
@@ -113,16 +125,8 @@ class GaussianActor(nn.Module):
         log_prob = (-0.5 * eps.pow(2) - log_std - _HALF_LOG_2PI).sum(dim=-1)
         return torch.tanh(mean + log_std.exp() * eps), log_prob
 
-    def forward(self, obs: Tensor, deterministic: bool = False) -> tuple[Tensor, Tensor]:
-        """(action, log-prob) for observations ``obs``; fresh noise unless ``deterministic``."""
-        head = self.head(obs)
-        eps = torch.zeros_like(head[..., : head.shape[-1] // 2])
-        if not deterministic:
-            eps.normal_()
-        return self.act(head, eps)
 
-
-class SquashedGaussianActor(nn.Module):
+class SquashedGaussianActor(_Actor):
     """SAPO's actor: a = tanh(u), u ~ N(mean(s), diag(std(s)^2)), std state-dependent.
 
     A trunk MLP and two linear heads (mean and log-std of u, as Mineral's ``mu`` and ``sigma``
@@ -173,14 +177,6 @@ class SquashedGaussianActor(nn.Module):
         log_det = 2.0 * (_LOG_2 - u - F.softplus(-2.0 * u))
         log_prob = (gauss_logp - log_det).sum(dim=-1)
         return torch.tanh(u), log_prob
-
-    def forward(self, obs: Tensor, deterministic: bool = False) -> tuple[Tensor, Tensor]:
-        """(action, log-prob) for observations ``obs``; fresh noise unless ``deterministic``."""
-        head = self.head(obs)
-        eps = torch.zeros_like(head[..., : head.shape[-1] // 2])
-        if not deterministic:
-            eps.normal_()
-        return self.act(head, eps)
 
 
 class Critic(nn.Module):

@@ -4,16 +4,9 @@ Engine packages (warp, newton, mujoco, ...) are imported only inside the adapter
 and only when an adapter is loaded.
 """
 
-from backends.contract import (
-    BackendError,
-    BatchedSim,
-    ControlKind,
-    InvalidActionError,
-    NonFiniteStateError,
-    SimState,
-    StateLayout,
-)
+from backends.contract import BackendError, BatchedSim, InvalidActionError, NonFiniteStateError
 from backends.registry import UnknownBackendError, available, get, make, register
+from simcore import ControlKind, SimState, StateLayout
 
 __all__ = [
     "BackendError",

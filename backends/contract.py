@@ -8,41 +8,39 @@ see an engine type.
 What an adapter writes (the abstract part, engine-specific):
 
 * :meth:`BatchedSim._build` - build the engine model for ``self.task`` and ``self.num_envs``.
+* one method ``_control_<kind>`` per :class:`ControlKind` it supports (``_control_joint_torque``,
+  ``_control_joint_position_target``, ``_control_tet_activation``): the task's control tensor ->
+  whatever its ``simulate`` consumes. A task whose kind has no such method is refused at build time.
 * :meth:`BatchedSim.state_from_generalized` - a :class:`SimState` from generalized coordinates
   (root pose and velocity, joint positions and velocities, optional particles), differentiable.
 * :meth:`BatchedSim.simulate` - ``(state, control) -> next state`` for one control step,
   differentiable through torch autograd w.r.t. the incoming state and the control.
 
-What the base class provides once for every adapter (the stateful part):
+Optional: :meth:`BatchedSim.bare_engine_rollout`, the same model stepped by the engine alone (the
+reference ``throughput`` compares the adapter against).
 
+What the base class provides once for every adapter:
+
+* :meth:`BatchedSim.advance` - the pure transition: validates actions, maps them to engine
+  controls through the task, simulates, and reports non-finite results per env.
+* :meth:`BatchedSim.step` - ``advance`` from the current state, which it then replaces.
 * :meth:`BatchedSim.reset` - fresh randomised initial states for some or all envs; the reset
   rows are detached, so the graph is cut for those envs only.
-* :meth:`BatchedSim.step` - validates actions, maps them to engine controls through the task,
-  simulates, and reports non-finite simulation results per env.
 * :meth:`BatchedSim.cut_graph` - detach all envs (window boundary) or only some.
 
-State layout (z up, quaternions ``(x, y, z, w)``, everything in the world frame):
-
-* ``joint_q``  (N, nq): ``[root_pos(3), root_quat(4), dof_q(J)]`` for a floating base, else ``dof_q``.
-* ``joint_qd`` (N, nv): ``[root_lin_vel(3), root_ang_vel(3), dof_qd(J)]``; the linear velocity is
-  that of the root body's centre of mass, the angular velocity is in the world frame.
-* ``particle_q``, ``particle_qd`` (N, P, 3): particles of soft bodies (``None`` without any).
-* ``engine`` (N, D): the adapter's own full state (maximal coordinates, solver extras), the only
-  thing :meth:`simulate` reads. The other fields are views of it, kept consistent by the adapter.
+Every adapter receives ``max_graph_steps``: how many control steps back a backward pass may
+reach (the harness passes the window length h). Adapters whose gradients need per-step buffers
+(Newton's tapes) keep that many; others may ignore it. The state layout is defined in
+:mod:`simcore`.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import enum
 from abc import ABC, abstractmethod
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import torch
 
-if TYPE_CHECKING:
-    from tasks.base import Task
+from simcore import ControlKind, SimState, StateLayout, TaskSpec
 
 
 class BackendError(RuntimeError):
@@ -66,95 +64,6 @@ class NonFiniteStateError(BackendError, FloatingPointError):
         super().__init__(f"non-finite simulation state in {len(env_ids)} env(s) [{shown}] at step {step}")
 
 
-class ControlKind(enum.Enum):
-    """How a task's control tensor drives the engine."""
-
-    JOINT_TORQUE = "joint_torque"  # (N, J) generalized forces on the actuated dofs
-    JOINT_POSITION_TARGET = "joint_position_target"  # (N, J) PD targets, gains in the task's physics spec
-    TET_ACTIVATION = "tet_activation"  # (N, T) per-tetrahedron muscle activation of a soft body
-
-
-@dataclass(frozen=True)
-class StateLayout:
-    """Static sizes of the backend-neutral state for one env."""
-
-    num_dofs: int  # actuated/articulated degrees of freedom after the root (J)
-    floating_base: bool = True
-    num_particles: int = 0
-    num_tets: int = 0
-
-    @property
-    def nq(self) -> int:
-        return (7 if self.floating_base else 0) + self.num_dofs
-
-    @property
-    def nv(self) -> int:
-        return (6 if self.floating_base else 0) + self.num_dofs
-
-
-@dataclass
-class SimState:
-    """Batched backend-neutral state; see the module docstring for the layout."""
-
-    joint_q: torch.Tensor
-    joint_qd: torch.Tensor
-    engine: torch.Tensor
-    particle_q: torch.Tensor | None = None
-    particle_qd: torch.Tensor | None = None
-
-    # -- views of a floating base ---------------------------------------------------------
-    @property
-    def root_pos(self) -> torch.Tensor:
-        return self.joint_q[:, 0:3]
-
-    @property
-    def root_quat(self) -> torch.Tensor:
-        return self.joint_q[:, 3:7]
-
-    @property
-    def root_lin_vel(self) -> torch.Tensor:
-        return self.joint_qd[:, 0:3]
-
-    @property
-    def root_ang_vel(self) -> torch.Tensor:
-        return self.joint_qd[:, 3:6]
-
-    def dof_q(self, layout: StateLayout) -> torch.Tensor:
-        return self.joint_q[:, layout.nq - layout.num_dofs :]
-
-    def dof_qd(self, layout: StateLayout) -> torch.Tensor:
-        return self.joint_qd[:, layout.nv - layout.num_dofs :]
-
-    # -- whole-state helpers --------------------------------------------------------------
-    def tensors(self) -> dict[str, torch.Tensor]:
-        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if getattr(self, f.name) is not None}
-
-    def map(self, fn) -> SimState:
-        """Apply ``fn`` to every tensor field."""
-        return SimState(**{k: fn(v) for k, v in self.tensors().items()})
-
-    def detach(self) -> SimState:
-        return self.map(torch.Tensor.detach)
-
-    def select(self, env_mask: torch.Tensor, other: SimState) -> SimState:
-        """Rows of ``other`` where ``env_mask`` is true, rows of ``self`` elsewhere."""
-        mine = self.tensors()
-        theirs = other.tensors()
-        out = {}
-        for name, value in mine.items():
-            mask = env_mask.reshape((-1,) + (1,) * (value.dim() - 1))
-            out[name] = torch.where(mask, theirs[name], value)
-        return SimState(**out)
-
-    def finite_envs(self) -> torch.Tensor:
-        """(N,) bool: true where every entry of the env's state is finite."""
-        ok = None
-        for value in self.tensors().values():
-            env_ok = torch.isfinite(value.detach()).reshape(value.shape[0], -1).all(dim=1)
-            ok = env_ok if ok is None else ok & env_ok
-        return ok
-
-
 class BatchedSim(ABC):
     """A task simulated in ``num_envs`` worlds; see the module docstring."""
 
@@ -163,18 +72,48 @@ class BatchedSim(ABC):
     #: the task the contract test suite (tests/test_contract.py) runs this adapter on
     contract_task: str = "ant"
 
-    def __init__(self, task: Task, num_envs: int, device: str = "cpu", seed: int = 0, **options):
-        if num_envs < 1:
-            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+    def __init__(
+        self,
+        task: TaskSpec,
+        num_envs: int,
+        device: str = "cpu",
+        seed: int = 0,
+        max_graph_steps: int = 64,
+        **options,
+    ):
+        for name, value in (("num_envs", num_envs), ("max_graph_steps", max_graph_steps)):
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
         self.task = task
-        self.num_envs = int(num_envs)
+        self.num_envs = num_envs
         self.device = torch.device(device)
         self.seed = int(seed)
+        self.max_graph_steps = max_graph_steps
         self.options = options
         self.generator = torch.Generator(device="cpu").manual_seed(self.seed)
         self.step_count = 0
+        supported = self.supported_control_kinds()
+        if task.control_kind not in supported:
+            raise BackendError(
+                f"the {self.name} adapter supports control kinds {', '.join(k.value for k in supported)}; "
+                f"task {task.name!r} needs {task.control_kind.value}"
+            )
         self._build()
         self._state: SimState = self._initial_state()
+
+    @classmethod
+    def supported_control_kinds(cls) -> list[ControlKind]:
+        """The kinds this adapter has a ``_control_<kind>`` method for."""
+        return [kind for kind in ControlKind if callable(getattr(cls, f"_control_{kind.value}", None))]
+
+    def engine_control(self, control: torch.Tensor) -> torch.Tensor:
+        """The task's control tensor through this adapter's method for the task's control kind."""
+        return getattr(self, f"_control_{self.task.control_kind.value}")(control)
+
+    def bare_engine_rollout(self, horizon: int) -> float | None:
+        """Seconds for one forward+backward window of ``horizon`` steps of the same model on the engine
+        alone (no torch, no adapter); ``None`` where the adapter has no such reference."""
+        return None
 
     # -- adapter hooks --------------------------------------------------------------------
     @property
@@ -256,18 +195,25 @@ class BatchedSim(ABC):
             raise InvalidActionError(f"actions contain NaN or inf for env(s) {ids[:16]}")
         return actions.to(device=self.device, dtype=torch.float32)
 
-    def step(self, actions: torch.Tensor) -> SimState:
-        """Apply ``actions`` (N, action_dim) for one control step and return the next state.
+    def advance(self, state: SimState, actions: torch.Tensor) -> SimState:
+        """The state one control step after ``state`` under ``actions`` (N, action_dim); pure.
 
-        Raises :class:`NonFiniteStateError` naming the envs whose state became NaN/inf; the
-        internal state is left at the last finite state so the caller can reset those envs.
+        Raises :class:`NonFiniteStateError` naming the envs whose state became NaN/inf.
         """
         actions = self.validate_actions(actions)
-        control = self.task.actions_to_control(actions)
-        next_state = self.simulate(self._state, control)
-        self.step_count += 1
+        next_state = self.simulate(state, self.task.actions_to_control(actions))
         finite = next_state.finite_envs()
         if not bool(finite.all()):
-            raise NonFiniteStateError((~finite).nonzero().flatten().tolist(), self.step_count)
+            raise NonFiniteStateError((~finite).nonzero().flatten().tolist(), self.step_count + 1)
+        return next_state
+
+    def step(self, actions: torch.Tensor) -> SimState:
+        """Apply ``actions`` for one control step from the current state and return the next state.
+
+        On :class:`NonFiniteStateError` the internal state stays at the last finite state, so the
+        caller can reset the named envs.
+        """
+        next_state = self.advance(self._state, actions)
+        self.step_count += 1
         self._state = next_state
         return next_state

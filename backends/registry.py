@@ -12,55 +12,18 @@ are loaded lazily, so listing backends never imports an engine.
 
 from __future__ import annotations
 
-from importlib.metadata import entry_points
-
 from backends.contract import BatchedSim
+from simcore import PluginRegistry, TaskSpec, UnknownNameError
 
 ENTRY_POINT_GROUP = "diffsim_bench.backends"
+REGISTRY = PluginRegistry(ENTRY_POINT_GROUP, BatchedSim, "backend")
+UnknownBackendError = UnknownNameError
 
-# Adapters registered at run time (tests, notebooks); they shadow entry points of the same name.
-_runtime: dict[str, type[BatchedSim]] = {}
-
-
-class UnknownBackendError(KeyError):
-    def __init__(self, name: str, choices: list[str]):
-        self.name = name
-        self.choices = choices
-        super().__init__(name)
-
-    def __str__(self) -> str:
-        return f"unknown backend {self.name!r}; choose from: {', '.join(self.choices) or '(none registered)'}"
+available = REGISTRY.available
+get = REGISTRY.get
+register = REGISTRY.register
 
 
-def register(name: str, cls: type[BatchedSim]) -> None:
-    """Register an adapter class in-process (entry points are the persistent way)."""
-    if not (isinstance(cls, type) and issubclass(cls, BatchedSim)):
-        raise TypeError(f"{cls!r} is not a BatchedSim subclass")
-    _runtime[name] = cls
-
-
-def _entry_points() -> dict:
-    return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
-
-
-def available() -> list[str]:
-    """Names of every registered adapter, sorted."""
-    return sorted(set(_entry_points()) | set(_runtime))
-
-
-def get(name: str) -> type[BatchedSim]:
-    """The adapter class registered under ``name``."""
-    if name in _runtime:
-        return _runtime[name]
-    eps = _entry_points()
-    if name not in eps:
-        raise UnknownBackendError(name, available())
-    cls = eps[name].load()
-    if not (isinstance(cls, type) and issubclass(cls, BatchedSim)):
-        raise TypeError(f"entry point {name!r} -> {cls!r} is not a BatchedSim subclass")
-    return cls
-
-
-def make(name: str, task, num_envs: int, device: str = "cpu", seed: int = 0, **options) -> BatchedSim:
-    """Instantiate the adapter ``name`` for ``task`` (a :class:`tasks.base.Task`)."""
+def make(name: str, task: TaskSpec, num_envs: int, device: str = "cpu", seed: int = 0, **options) -> BatchedSim:
+    """Instantiate the adapter ``name`` for ``task``."""
     return get(name)(task, num_envs=num_envs, device=device, seed=seed, **options)

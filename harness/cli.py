@@ -1,21 +1,41 @@
 """``python -m harness VERB ...``: the benchmark's command line.
 
-Verbs: ``list`` (backends and tasks), ``gradcheck`` (autograd vs finite differences),
-``throughput`` (env-steps/s forward-only and forward+backward).
-Bad input (unknown backend/task, invalid numbers) prints one ``error:`` line and exits 2.
+Verbs: ``list``, ``gradcheck``, ``throughput``, ``train`` (and ``train --resume DIR``), ``eval``,
+``report``, ``sweep``, ``grad-growth``, ``crosscheck``, ``solver-probe``. Every flag is declared once
+in :data:`FLAGS` (type, default, help) and every hyperparameter flag is generated from
+:class:`algorithms.config.AlgoConfig`, whose field docs are the ``--help`` text. Bad input (an
+unknown backend or task, an invalid number or configuration) prints one ``error:`` line and exits 2.
+
+Why argparse and not tyro (the CLI library CleanRL uses): tyro reports a bad value in a
+nine-line framed panel (measured with tyro 1.0.17 on ``--critic-iterations 2.5``), which breaks the
+one-line ``error:`` + exit 2 contract; generating the flags from the dataclass gives the same
+single source of truth.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import sys
+import types
+import typing
 
 EXIT_BAD_INPUT = 2
 
 
 class BadInput(Exception):
     """User input we refuse: reported as one line, exit code 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that reports errors as a single line with exit code 2."""
+
+    def error(self, message: str):
+        raise BadInput(f"{self.prog}: {message}")
+
+
+# -- value types ------------------------------------------------------------------------------
 
 
 def _positive_int(text: str) -> int:
@@ -28,52 +48,28 @@ def _positive_int(text: str) -> int:
     return value
 
 
-def _positive_float(text: str) -> float:
+def _int(text: str) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+
+
+def _finite(text: str) -> float:
     try:
         value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not value > 0.0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a positive finite number, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
     return value
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse that reports errors as a single line with exit code 2."""
-
-    def error(self, message: str):
-        raise BadInput(f"{self.prog}: {message}")
-
-
-def _add_sim_args(p: argparse.ArgumentParser, num_envs: int) -> None:
-    p.add_argument("--backend", required=True, help="adapter name (see `list`)")
-    p.add_argument("--task", required=True, help="task name (see `list`)")
-    p.add_argument("--num-envs", type=_positive_int, default=num_envs)
-    p.add_argument("--device", default="cpu", help="torch/warp device, e.g. cpu or cuda:0")
-    p.add_argument("--seed", type=int, default=0)
-
-
-def _add_algo_overrides(p: argparse.ArgumentParser) -> None:
-    """One flag per hyperparameter of AlgoConfig (``--actor-lr``, ``--lambda-batches`` = b_lambda, ...)."""
-    from algorithms.config import AlgoConfig
-
-    group = p.add_argument_group("hyperparameter overrides (default: the algorithm's preset)")
-    for f in dataclasses.fields(AlgoConfig):
-        if f.name in ("algo", "extra"):
-            continue
-        flag = "--" + f.name.replace("_", "-")
-        default = f.default
-        if isinstance(default, bool):
-            group.add_argument(flag, type=_bool, default=None, metavar="{true,false}")
-        elif isinstance(default, tuple):
-            kind = type(default[0])
-            group.add_argument(flag, type=kind, nargs=len(default) if kind is float else "+", default=None)
-        elif f.name in ("num_envs", "horizon"):
-            group.add_argument(flag, type=_positive_int, default=None)
-        elif isinstance(default, int | float) or default is None:
-            group.add_argument(flag, type=_number, default=None)
-        else:
-            group.add_argument(flag, type=str, default=None)
+def _positive_float(text: str) -> float:
+    value = _finite(text) if text.lower() not in ("nan", "inf", "-inf") else float("nan")
+    if not value > 0.0:
+        raise argparse.ArgumentTypeError(f"expected a positive finite number, got {text!r}")
+    return value
 
 
 def _bool(text: str) -> bool:
@@ -84,14 +80,82 @@ def _bool(text: str) -> bool:
     raise argparse.ArgumentTypeError(f"expected true or false, got {text!r}")
 
 
-def _number(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if value != value or value in (float("inf"), float("-inf")):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return int(value) if value.is_integer() and "." not in text and "e" not in text.lower() else value
+def _optional_float(text: str) -> float | None:
+    return None if text.lower() == "none" else _finite(text)
+
+
+# -- every flag, declared once --------------------------------------------------------------------
+
+FLAGS: dict[str, dict] = {
+    "backend": {"help": "adapter name (see `list`)"},
+    "backends": {"nargs": "+", "help": "two or more adapter names (see `list`)"},
+    "task": {"help": "task name (see `list`)"},
+    "algo": {"help": "one of: shac, shac-tdfixed, shac-tdadpt, sapo, sapo-tdfixed, sapo-tdadpt"},
+    "algos": {"nargs": "+", "help": "algorithm presets to train, e.g. shac shac-tdadpt"},
+    "num_envs": {"type": _positive_int, "help": "parallel environments N (eval: per seed, default twice the run's)"},
+    "horizon": {"type": _positive_int, "help": "control steps per window h (the graph is cut after each)"},
+    "device": {"default": "cpu", "help": "torch/warp device, e.g. cpu or cuda:0"},
+    "seed": {"type": _int, "default": 0, "help": "random seed of the run (initial states, noise, weights)"},
+    "seeds": {"type": _int, "nargs": "+", "default": [0], "help": "training seeds"},
+    "steps": {"type": _positive_int, "default": 8, "help": "control steps in the differentiated rollout"},
+    "epochs": {"type": _positive_int, "help": "total epochs (with --resume: a new, larger total)"},
+    "out": {"help": "output path (a directory for runs, a file or prefix for results)"},
+    "run": {"help": "run directory written by `train`"},
+    "runs": {"nargs": "+", "help": "run directories written by `train`"},
+    "windows": {"type": _positive_int, "help": "timed windows per variant (the best is kept)"},
+    "eval_seeds": {"type": _positive_int, "default": 10, "help": "evaluation seeds (10000, 10001, ...)"},
+    "max_steps": {"type": _positive_int, "help": "cap on steps per evaluation episode"},
+    "checkpoint_every": {"type": _positive_int, "default": 5, "help": "epochs between checkpoints"},
+    "tolerance": {"type": _positive_float, "help": "max relative gradient error allowed (default 2e-2)"},
+}
+
+# the few flags whose default differs by verb, in one place
+VERB_DEFAULTS: dict[str, dict] = {
+    "gradcheck": {"num_envs": 2},  # finite differences perturb every env at once: 2 envs say as much as 64
+    "crosscheck": {"num_envs": 4},
+    "throughput": {"num_envs": 64, "horizon": 32, "windows": 5},
+    "sweep": {"num_envs": 64, "horizon": 32},
+}
+
+
+def _add(p: argparse.ArgumentParser, verb: str, *names: str, required: tuple[str, ...] = ()) -> None:
+    for name in names:
+        spec = dict(FLAGS[name])
+        if name in VERB_DEFAULTS.get(verb, {}):
+            spec["default"] = VERB_DEFAULTS[verb][name]
+        if "default" in spec and spec["default"] is not None:
+            spec["help"] += " (default: %(default)s)"
+        flag = "--" + name.replace("_", "-")
+        p.add_argument(flag, dest=name, required=name in required, **spec)
+
+
+def _hyperparameter_flags(p: argparse.ArgumentParser) -> None:
+    """One flag per AlgoConfig field; its help is the field's documentation."""
+    from algorithms.config import AlgoConfig
+
+    group = p.add_argument_group("hyperparameters (default: the --algo preset's value)")
+    hints = typing.get_type_hints(AlgoConfig)
+    for f in dataclasses.fields(AlgoConfig):
+        if f.name in ("algo", "num_envs", "horizon"):  # declared in FLAGS
+            continue
+        hint = hints[f.name]
+        spec: dict = {"default": None, "help": f.metadata.get("help", "")}
+        origin = typing.get_origin(hint)
+        if origin is typing.Literal:
+            spec["choices"] = typing.get_args(hint)
+        elif hint is bool:
+            spec.update(type=_bool, metavar="{true,false}")
+        elif origin is tuple:
+            args = typing.get_args(hint)
+            spec["type"] = _int if args[0] is int else _finite
+            spec["nargs"] = "+" if args[-1] is Ellipsis else len(args)
+        elif origin in (typing.Union, types.UnionType):  # float | None
+            spec.update(type=_optional_float, metavar="{NUMBER,none}")
+        elif hint is int:
+            spec["type"] = _int
+        else:
+            spec["type"] = _finite
+        group.add_argument("--" + f.name.replace("_", "-"), dest=f.name, **spec)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -101,9 +165,18 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_parser("list", help="registered backends and tasks")
 
     p = sub.add_parser("gradcheck", help="compare autograd gradients with central finite differences")
-    _add_sim_args(p, num_envs=2)
-    p.add_argument("--steps", type=_positive_int, default=8, help="control steps in the rollout")
-    p.add_argument("--tolerance", type=_positive_float, default=None, help="max relative error allowed")
+    _add(
+        p,
+        "gradcheck",
+        "backend",
+        "task",
+        "num_envs",
+        "device",
+        "seed",
+        "steps",
+        "tolerance",
+        required=("backend", "task"),
+    )
     p.add_argument(
         "--with-contact",
         action="store_true",
@@ -111,84 +184,100 @@ def build_parser() -> argparse.ArgumentParser:
     )
 
     p = sub.add_parser("train", help="train an algorithm; writes config.json, metrics.jsonl, checkpoints")
-    p.add_argument("--backend", help="adapter name (see `list`)")
-    p.add_argument("--task", help="task name (see `list`)")
-    p.add_argument("--algo", help="one of: shac, shac-tdfixed, shac-tdadpt, sapo, sapo-tdfixed, sapo-tdadpt")
-    p.add_argument("--device", default="cpu")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--epochs", type=_positive_int, default=None, help="total epochs (with --resume: a new total)")
-    p.add_argument("--out", help="run directory to create")
-    p.add_argument("--resume", metavar="DIR", help="continue the interrupted run in DIR")
-    p.add_argument("--checkpoint-every", type=_positive_int, default=5)
-    _add_algo_overrides(p)
+    _add(p, "train", "backend", "task", "algo", "num_envs", "horizon", "device", "seed", "epochs", "out")
+    _add(p, "train", "checkpoint_every")
+    p.add_argument("--resume", metavar="DIR", help="continue the interrupted run in DIR (only --epochs may change)")
+    _hyperparameter_flags(p)
 
     p = sub.add_parser("eval", help="evaluate a run's final (and initial) policy; writes DIR/eval.json")
-    p.add_argument("--run", required=True, help="run directory written by `train`")
-    p.add_argument("--seeds", type=_positive_int, default=10)
-    p.add_argument("--num-envs", type=_positive_int, default=None, help="default: twice the training env count")
-    p.add_argument("--max-steps", type=_positive_int, default=None, help="cap on steps per episode")
+    _add(p, "eval", "run", "eval_seeds", "num_envs", "max_steps", required=("run",))
 
-    p = sub.add_parser("report", help="table (md, csv) and curves (png) from run directories")
-    p.add_argument("--runs", nargs="+", required=True, help="run directories written by `train`")
-    p.add_argument("--out", required=True, help="output prefix, e.g. results/ant_newton_shac_vs_tdadpt")
+    p = sub.add_parser("report", help="tables (md, csv: per run and mean over seeds) and curves (png)")
+    _add(p, "report", "runs", "out", required=("runs", "out"))
     p.add_argument("--no-plot", action="store_true")
 
-    p = sub.add_parser("sweep", help="train (or resume) and evaluate several algorithms, then report")
-    p.add_argument("--backend", required=True)
-    p.add_argument("--task", required=True)
-    p.add_argument("--algos", nargs="+", required=True)
-    p.add_argument("--seeds", type=int, nargs="+", default=[0])
-    p.add_argument("--epochs", type=_positive_int, required=True)
-    p.add_argument("--num-envs", type=_positive_int, default=64)
-    p.add_argument("--horizon", type=_positive_int, default=32)
-    p.add_argument("--device", default="cpu")
-    p.add_argument("--eval-seeds", type=_positive_int, default=10)
-    p.add_argument("--eval-max-steps", type=_positive_int, default=None)
-    p.add_argument("--out", required=True, help="directory for the runs and the report")
+    p = sub.add_parser("sweep", help="train (or resume) and evaluate several algorithms and seeds, then report")
+    names = ("backend", "task", "algos", "seeds", "epochs", "num_envs", "horizon", "device", "eval_seeds", "max_steps")
+    _add(p, "sweep", *names, "out", required=("backend", "task", "algos", "epochs", "out"))
 
     p = sub.add_parser("grad-growth", help="open-loop action-gradient norms along a run's policy trajectories")
-    p.add_argument("--run", required=True)
+    _add(p, "grad-growth", "run", required=("run",))
     p.add_argument("--variant", action="append", default=None, help="physics changes, e.g. contact_kf=300")
-    p.add_argument("--windows", type=_positive_int, default=3)
-    p.add_argument("--out", default=None)
+    p.add_argument("--windows", type=_positive_int, default=3, help="windows replayed (default: %(default)s)")
+    _add(p, "grad-growth", "out")
 
     p = sub.add_parser("crosscheck", help="compare backends' gradients of the same loss, start and actions")
-    p.add_argument("--task", required=True)
-    p.add_argument("--backends", nargs="+", required=True)
-    p.add_argument("--num-envs", type=_positive_int, default=4)
-    p.add_argument("--steps", type=_positive_int, default=8)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", default=None)
+    _add(p, "crosscheck", "task", "backends", "num_envs", "steps", "seed", "out", required=("task", "backends"))
 
-    p = sub.add_parser("throughput", help="env-steps/s forward-only and forward+backward")
-    _add_sim_args(p, num_envs=64)
-    p.add_argument("--horizon", type=_positive_int, default=32, help="steps per window (graph cut after each)")
-    p.add_argument("--windows", type=_positive_int, default=5, help="timed windows per variant (best is kept)")
-    p.add_argument("--out", default=None, help="write the result as JSON here (with the command that made it)")
+    p = sub.add_parser("throughput", help="env-steps/s forward-only and forward+backward, and the bare engine")
+    _add(
+        p,
+        "throughput",
+        "backend",
+        "task",
+        "num_envs",
+        "horizon",
+        "device",
+        "seed",
+        "windows",
+        "out",
+        required=("backend", "task"),
+    )
+
+    p = sub.add_parser("solver-probe", help="Newton solver/contact settings: forward stability and gradient size")
+    _add(p, "solver-probe", "out")
+    p.add_argument("--num-envs", type=_positive_int, default=64, help="Ants per probe (default: %(default)s)")
     return parser
 
 
-def _make_sim(args, **options):
-    # Imports here, not at module level: `list` and argument errors must not load an engine.
+# -- helpers --------------------------------------------------------------------------------------
+
+
+def _command() -> str:
+    return "python -m harness " + " ".join(sys.argv[1:])
+
+
+def _validate_names(backend: str | None = None, task: str | None = None) -> None:
     import backends
+    import tasks
+
+    if backend is not None and backend not in backends.available():
+        raise BadInput(f"unknown backend {backend!r}; choose from: {', '.join(backends.available())}")
+    if task is not None and task not in tasks.available():
+        raise BadInput(f"unknown task {task!r}; choose from: {', '.join(tasks.available())}")
+
+
+def _make_sim(args, horizon: int):
+    # Imports here, not at module level: `list` and argument errors must not load an engine.
+    from harness.envs import make_sim
     from tasks import make_task
 
-    task = make_task(args.task)
-    cls = backends.get(args.backend)
     try:
-        return cls(task, num_envs=args.num_envs, device=args.device, seed=args.seed, **options)
+        return make_sim(args.backend, make_task(args.task), args.num_envs, args.device, args.seed, horizon)
     except (RuntimeError, ValueError) as exc:
         raise BadInput(f"cannot build {args.backend}/{args.task} on {args.device}: {exc}") from exc
 
 
-def _validate_names(args) -> None:
-    import backends
-    import tasks
+def _algo_config(args, name: str):
+    """The preset ``name`` with every hyperparameter flag the user gave applied (validated once)."""
+    from algorithms.config import AlgoConfig, preset
 
-    if args.backend not in backends.available():
-        raise BadInput(f"unknown backend {args.backend!r}; choose from: {', '.join(backends.available())}")
-    if args.task not in tasks.available():
-        raise BadInput(f"unknown task {args.task!r}; choose from: {', '.join(tasks.available())}")
+    try:
+        cfg = preset(name)
+    except KeyError as exc:
+        raise BadInput(exc.args[0]) from None
+    changes = {}
+    for f in dataclasses.fields(AlgoConfig):
+        value = getattr(args, f.name, None)
+        if value is not None and f.name != "algo":
+            changes[f.name] = tuple(value) if isinstance(value, list) else value
+    try:
+        return cfg.replace(**changes)
+    except ValueError as exc:
+        raise BadInput(f"bad configuration: {exc}") from None
+
+
+# -- verbs ----------------------------------------------------------------------------------------
 
 
 def cmd_list(args) -> int:
@@ -203,8 +292,8 @@ def cmd_list(args) -> int:
 def cmd_gradcheck(args) -> int:
     from harness.gradcheck import DEFAULT_TOLERANCE, gradcheck
 
-    _validate_names(args)
-    sim = _make_sim(args)
+    _validate_names(args.backend, args.task)
+    sim = _make_sim(args, horizon=args.steps)
     tolerance = args.tolerance or DEFAULT_TOLERANCE
     start_height = None
     if not args.with_contact and sim.layout.floating_base:
@@ -223,16 +312,15 @@ def cmd_throughput(args) -> int:
     from harness.results import provenance, write_json
     from harness.throughput import measure
 
-    _validate_names(args)
-    sim = _make_sim(args, max_graph_steps=max(64, args.horizon))
-    bare = getattr(sys.modules[type(sim).__module__], "bare_tape_rollout", None)
+    _validate_names(args.backend, args.task)
+    sim = _make_sim(args, horizon=args.horizon)
     print(f"throughput {args.backend}/{args.task}: {args.num_envs} envs, windows of {args.horizon} steps", flush=True)
-    result = measure(sim, horizon=args.horizon, windows=args.windows, seed=args.seed, bare=bare)
+    result = measure(sim, horizon=args.horizon, windows=args.windows, seed=args.seed)
     print(f"  forward only:        {result.forward_steps_per_s:10.0f} env-steps/s")
     print(f"  forward + backward:  {result.forward_backward_steps_per_s:10.0f} env-steps/s")
     print(f"  gradient cost:       {result.gradient_cost_factor:10.2f} x a forward-only step")
     if result.bare_engine_steps_per_s is not None:
-        print(f"  bare engine tape:    {result.bare_engine_steps_per_s:10.0f} env-steps/s (forward + backward)")
+        print(f"  bare engine:         {result.bare_engine_steps_per_s:10.0f} env-steps/s (forward + backward)")
         print(f"  adapter / bare time: {result.overhead_ratio:10.3f}")
     if args.out:
         path = write_json(args.out, {"result": result.as_dict(), "provenance": provenance()})
@@ -240,48 +328,29 @@ def cmd_throughput(args) -> int:
     return 0
 
 
-def _algo_config(args):
-    from algorithms.config import AlgoConfig, preset
-
-    try:
-        cfg = preset(args.algo)
-    except KeyError as exc:
-        raise BadInput(exc.args[0]) from None
-    changes = {}
-    for f in dataclasses.fields(AlgoConfig):
-        value = getattr(args, f.name, None)
-        if value is not None and f.name not in ("algo", "extra"):
-            changes[f.name] = tuple(value) if isinstance(value, list) else value
-    try:
-        return cfg.replace(**changes)
-    except ValueError as exc:
-        raise BadInput(f"bad configuration: {exc}") from None
-
-
 def cmd_train(args) -> int:
-    from harness.train import RunError, train
+    from harness.train import RunError, resume, train
 
-    command = "python -m harness " + " ".join(sys.argv[1:])
     try:
         if args.resume:
-            from algorithms.config import AlgoConfig
-
-            train(
-                args.resume,
-                "",
-                "",
-                AlgoConfig(),
-                args.epochs or 0,
-                resume=True,
-                checkpoint_every=args.checkpoint_every,
-                command=command,
-            )
+            given = [
+                "--" + name.replace("_", "-")
+                for name, value in vars(args).items()
+                if value is not None
+                and name not in ("verb", "resume", "epochs", "checkpoint_every")
+                and value != FLAGS.get(name, {}).get("default")
+            ]
+            if given:
+                raise BadInput(f"--resume continues the run as configured; drop {', '.join(given)} (only --epochs)")
+            resume(args.resume, args.epochs, checkpoint_every=args.checkpoint_every, command=_command())
             return 0
         missing = [name for name in ("backend", "task", "algo", "epochs", "out") if getattr(args, name) is None]
         if missing:
-            raise BadInput("train needs " + ", ".join("--" + m for m in missing) + " (or --resume DIR)")
-        _validate_names(args)
-        cfg = _algo_config(args)
+            raise BadInput(
+                "train needs " + ", ".join("--" + m.replace("_", "-") for m in missing) + " (or --resume DIR)"
+            )
+        _validate_names(args.backend, args.task)
+        cfg = _algo_config(args, args.algo)
         train(
             args.out,
             args.task,
@@ -291,7 +360,7 @@ def cmd_train(args) -> int:
             seed=args.seed,
             device=args.device,
             checkpoint_every=args.checkpoint_every,
-            command=command,
+            command=_command(),
         )
     except RunError as exc:
         raise BadInput(str(exc)) from None
@@ -305,11 +374,11 @@ def cmd_eval(args) -> int:
 
     if not (Path(args.run) / "config.json").exists():
         raise BadInput(f"{args.run} is not a run directory (no config.json)")
-    result = evaluate(args.run, seeds=args.seeds, num_envs=args.num_envs, max_steps=args.max_steps)
+    result = evaluate(args.run, seeds=args.eval_seeds, num_envs=args.num_envs, max_steps=args.max_steps)
     print(f"initial policy: mean return {result['initial']['mean_return']:.1f}")
     print(
         f"final policy:   mean return {result['final']['mean_return']:.1f} "
-        f"(std over {args.seeds} seeds {result['final']['std_over_seeds']:.1f})"
+        f"(std over {args.eval_seeds} seeds {result['final']['std_over_seeds']:.1f})"
     )
     print(f"wrote {Path(args.run) / 'eval.json'}")
     return 0
@@ -318,56 +387,39 @@ def cmd_eval(args) -> int:
 def cmd_report(args) -> int:
     from pathlib import Path
 
-    from harness.report import plot_curves, summarize, write_table
+    from harness.report import write_report
 
     runs = [Path(r) for r in args.runs]
     missing = [str(r) for r in runs if not (r / "config.json").exists()]
     if missing:
         raise BadInput(f"not run directories (no config.json): {', '.join(missing)}")
-    command = "python -m harness " + " ".join(sys.argv[1:])
-    md, csv = write_table([summarize(r) for r in runs], args.out, command)
-    print(f"wrote {md} and {csv}")
-    if not args.no_plot:
-        print(f"wrote {plot_curves(runs, Path(args.out).with_suffix('.png'))}")
+    for path in write_report(runs, args.out, _command(), plot=not args.no_plot):
+        print(f"wrote {path}")
     return 0
 
 
 def cmd_sweep(args) -> int:
     from pathlib import Path
 
-    from harness.report import plot_curves, summarize, write_table
-    from harness.train import evaluate, train
+    from harness.report import write_report
+    from harness.train import evaluate, resume, train
 
-    _validate_names(args)
-    for name in args.algos:
-        args.algo = name
-        _algo_config(args)  # refuse a bad name before any training starts
-    command = "python -m harness " + " ".join(sys.argv[1:])
+    _validate_names(args.backend, args.task)
+    configs = {name: _algo_config(args, name) for name in args.algos}  # refuse bad input before any training
     runs = []
-    for name in args.algos:
+    for name, cfg in configs.items():
         for seed in args.seeds:
-            args.algo = name
-            cfg = _algo_config(args).replace(num_envs=args.num_envs, horizon=args.horizon)
             run = Path(args.out) / f"{args.task}_{args.backend}_{name}_s{seed}"
-            resume = (run / "config.json").exists()
-            print(f"== {run.name}{' (resume)' if resume else ''}", flush=True)
-            train(
-                run,
-                args.task,
-                args.backend,
-                cfg,
-                args.epochs,
-                seed=seed,
-                device=args.device,
-                resume=resume,
-                command=command,
-            )
-            evaluate(run, seeds=args.eval_seeds, max_steps=args.eval_max_steps)
+            resuming = (run / "config.json").exists()
+            print(f"== {run.name}{' (resume)' if resuming else ''}", flush=True)
+            if resuming:
+                resume(run, args.epochs, command=_command())
+            else:
+                train(run, args.task, args.backend, cfg, args.epochs, seed=seed, device=args.device, command=_command())
+            evaluate(run, seeds=args.eval_seeds, max_steps=args.max_steps)
             runs.append(run)
-    prefix = Path(args.out) / "summary"
-    md, _ = write_table([summarize(r) for r in runs], prefix, command)
-    plot_curves(runs, prefix.with_suffix(".png"))
-    print(Path(md).read_text())
+    paths = write_report(runs, Path(args.out) / "summary", _command())
+    print(Path(paths[0]).read_text())
     return 0
 
 
@@ -397,9 +449,9 @@ def cmd_crosscheck(args) -> int:
     from harness.crosscheck import crosscheck
     from harness.results import provenance, write_json
 
+    _validate_names(task=args.task)
     for name in args.backends:
-        args.backend = name
-        _validate_names(args)
+        _validate_names(backend=name)
     report = crosscheck(args.task, args.backends, num_envs=args.num_envs, steps=args.steps, seed=args.seed)
     print(json.dumps(report["segments"], indent=2))
     if args.out:
@@ -407,16 +459,24 @@ def cmd_crosscheck(args) -> int:
     return 0
 
 
+def cmd_solver_probe(args) -> int:
+    from harness.solver_probe import run_probe
+
+    run_probe(num_envs=args.num_envs, out=args.out, command=_command())
+    return 0
+
+
 VERBS = {
-    "crosscheck": cmd_crosscheck,
-    "grad-growth": cmd_grad_growth,
-    "report": cmd_report,
-    "sweep": cmd_sweep,
     "list": cmd_list,
     "gradcheck": cmd_gradcheck,
     "throughput": cmd_throughput,
     "train": cmd_train,
     "eval": cmd_eval,
+    "report": cmd_report,
+    "sweep": cmd_sweep,
+    "grad-growth": cmd_grad_growth,
+    "crosscheck": cmd_crosscheck,
+    "solver-probe": cmd_solver_probe,
 }
 
 

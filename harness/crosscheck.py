@@ -21,12 +21,13 @@ import itertools
 
 import torch
 
-from harness.gradcheck import _rollout, gradcheck
+from harness.envs import make_sim
+from harness.gradcheck import gradcheck, rollout_loss
 
 
 def _gradients(sim, q0, qd0, actions) -> dict[str, torch.Tensor]:
     q, qd, a = (x.clone().requires_grad_(True) for x in (q0, qd0, actions))
-    _rollout(sim, q, qd, a).sum().backward()
+    rollout_loss(sim, q, qd, a).sum().backward()
     g_q = q.grad.clone()
     if sim.layout.floating_base:
         quat = q0[:, 3:7] / q0[:, 3:7].norm(dim=1, keepdim=True)
@@ -51,11 +52,10 @@ def crosscheck(
     seed: int = 0,
     action_scale: float = 0.1,
 ) -> dict:
-    import backends
     from tasks import make_task
 
     task = make_task(task_name)
-    sims = {name: backends.make(name, task, num_envs=num_envs, seed=seed) for name in backend_names}
+    sims = {name: make_sim(name, task, num_envs, seed=seed, horizon=steps) for name in backend_names}
     report = {
         "task": task_name,
         "num_envs": num_envs,

@@ -25,7 +25,7 @@ from harness.train import CHECKPOINT, load_checkpoint
 
 def parse_variant(text: str) -> dict:
     """``"contact_kf=300,joint_limit_ke=100"`` -> PhysicsSpec changes (``""``: none)."""
-    from tasks.base import PhysicsSpec
+    from simcore import PhysicsSpec
 
     names = {f.name for f in dataclasses.fields(PhysicsSpec)}
     changes = {}
@@ -37,19 +37,25 @@ def parse_variant(text: str) -> dict:
     return changes
 
 
+def _physics_fields(recorded: dict) -> dict:
+    """A run's recorded physics constants, as PhysicsSpec fields (lists back to tuples; old names mapped)."""
+    renamed = {"pd_ke": "pd_kp"}
+    return {renamed.get(k, k): tuple(v) if isinstance(v, list) else v for k, v in recorded.items()}
+
+
 def grad_growth(run: str | Path, variants: list[str], windows: int = 3, seed: int = 0) -> dict:
-    import backends
+    from harness.envs import make_env, make_sim
+    from simcore import PhysicsSpec
     from tasks import make_task
-    from tasks.base import PhysicsSpec
-    from tasks.env import TaskEnv
+    from tasks.rollout import rollout_reward
 
     run = Path(run)
     config = json.loads((run / "config.json").read_text())
     algo_cfg = AlgoConfig.from_dict(config["algo"])
     n, h = algo_cfg.num_envs, algo_cfg.horizon
-    task = make_task(config["task"], PhysicsSpec(**config.get("physics", {})))
+    physics = PhysicsSpec(**_physics_fields(config.get("physics", {})))
     torch.manual_seed(seed)
-    env = TaskEnv(task, backends.make(config["backend"], task, num_envs=n, seed=seed, max_graph_steps=max(64, h)))
+    env = make_env(config["task"], config["backend"], n, seed=seed, horizon=h, physics=physics)
     algo = FirstOrderActorCritic(algo_cfg, env.obs_dim, env.action_dim)
     load_checkpoint(run / CHECKPOINT, algo, env)
     recorded = []
@@ -65,16 +71,11 @@ def grad_growth(run: str | Path, variants: list[str], windows: int = 3, seed: in
     out = {"run": str(run), "windows": windows, "num_envs": n, "horizon": h, "variants": []}
     for text in variants:
         variant_task = make_task(config["task"], PhysicsSpec(**parse_variant(text)))
-        sim = backends.make(config["backend"], variant_task, num_envs=n, seed=seed, max_graph_steps=max(64, h))
+        sim = make_sim(config["backend"], variant_task, n, seed=seed, horizon=h)
         norms = []
         for start, actions in recorded:
-            sim.state = start
             a = actions.clone().requires_grad_(True)
-            loss = 0.0
-            for t in range(h):
-                state = sim.step(a[t])
-                loss = loss + variant_task.reward(state, variant_task.observe(state, a[t]), a[t]).sum()
-            loss.backward()
+            rollout_reward(sim, start, a).sum().backward()
             norms.append(a.grad[0].norm(dim=1))
         g = torch.cat(norms)
         out["variants"].append(

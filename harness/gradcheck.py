@@ -22,7 +22,8 @@ from dataclasses import dataclass
 
 import torch
 
-from backends.contract import BatchedSim, SimState
+from backends.contract import BatchedSim
+from tasks.rollout import rollout_reward
 
 # Why these numbers: the engines run in float32 (~7 significant digits). With losses of O(1-10)
 # and steps of 1e-2 (actions, i.e. 2 N m of torque) and 1e-3 (state), round-off in a central
@@ -47,18 +48,10 @@ class GradcheckResult:
         return max(self.action_rel_error, self.state_rel_error)
 
 
-def _rollout(sim: BatchedSim, q0: torch.Tensor, qd0: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
-    """Per-env loss (N,) of a rollout from generalized state (q0, qd0) under actions (T, N, A)."""
-    task = sim.task
-    state: SimState = sim.state_from_generalized(q0, qd0)
-    prev = torch.zeros_like(actions[0])
-    loss = torch.zeros(sim.num_envs, dtype=torch.float64, device=q0.device)
-    for t in range(actions.shape[0]):
-        state = sim.simulate(state, task.actions_to_control(actions[t]))
-        obs = task.observe(state, actions[t])
-        loss = loss + task.reward(state, obs, prev).double()
-        prev = actions[t]
-    return loss
+def rollout_loss(sim: BatchedSim, q0: torch.Tensor, qd0: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+    """Per-env loss (N,): the task's rewards summed over actions (T, N, A) from generalized state (q0, qd0),
+    with the env's step semantics (:func:`tasks.rollout.rollout_reward`)."""
+    return rollout_reward(sim, sim.state_from_generalized(q0, qd0), actions)
 
 
 def _fd_per_env(fn, x: torch.Tensor, eps: float) -> torch.Tensor:
@@ -112,12 +105,12 @@ def gradcheck(
     q_var = q0.clone().requires_grad_(True)
     qd_var = qd0.clone().requires_grad_(True)
     a_var = actions.clone().requires_grad_(True)
-    loss = _rollout(sim, q_var, qd_var, a_var)
+    loss = rollout_loss(sim, q_var, qd_var, a_var)
     loss.sum().backward()
 
-    fd_actions = _fd_per_env(lambda a: _rollout(sim, q0, qd0, a), actions, ACTION_EPS)
-    fd_q = _fd_per_env(lambda q: _rollout(sim, q, qd0, actions), q0, STATE_EPS)
-    fd_qd = _fd_per_env(lambda qd: _rollout(sim, q0, qd, actions), qd0, STATE_EPS)
+    fd_actions = _fd_per_env(lambda a: rollout_loss(sim, q0, qd0, a), actions, ACTION_EPS)
+    fd_q = _fd_per_env(lambda q: rollout_loss(sim, q, qd0, actions), q0, STATE_EPS)
+    fd_qd = _fd_per_env(lambda qd: rollout_loss(sim, q0, qd, actions), qd0, STATE_EPS)
     # a missing gradient (no autograd path at all) counts as zero, i.e. 100% error
     grads = [v.grad if v.grad is not None else torch.zeros_like(v) for v in (q_var, qd_var, a_var)]
     state_ad = torch.cat(grads[:2], dim=-1)

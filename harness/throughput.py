@@ -71,10 +71,10 @@ def _window(sim: BatchedSim, horizon: int, grad: bool, gen: torch.Generator) -> 
     return elapsed
 
 
-def measure(sim: BatchedSim, horizon: int = 32, windows: int = 5, seed: int = 0, bare=None) -> ThroughputResult:
+def measure(sim: BatchedSim, horizon: int = 32, windows: int = 5, seed: int = 0) -> ThroughputResult:
     """Best-of-``windows`` rates after one warm-up window each (Warp compiles on first use).
 
-    ``bare`` is an optional ``f(sim, horizon) -> seconds`` reference rollout of the raw engine.
+    The bare-engine reference is the adapter's optional ``bare_engine_rollout`` (None: none).
     """
     gen = torch.Generator().manual_seed(seed)
     steps = sim.num_envs * horizon
@@ -85,10 +85,11 @@ def measure(sim: BatchedSim, horizon: int = 32, windows: int = 5, seed: int = 0,
     for _ in range(windows):
         for grad in (False, True):
             best[grad] = min(best[grad], _window(sim, horizon, grad, gen))
+        bare = sim.bare_engine_rollout(horizon)
         if bare is not None:
-            best["bare"] = min(best["bare"], bare(sim, horizon))
+            best["bare"] = min(best["bare"], bare)
     rates = {k: steps / v for k, v in best.items()}
-    bare_rate = rates["bare"] if bare is not None else None
+    bare_rate = rates["bare"] if best["bare"] < float("inf") else None
     return ThroughputResult(
         backend=sim.name,
         task=sim.task.name,

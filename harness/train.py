@@ -26,6 +26,7 @@ import torch
 
 from algorithms.actor_critic import FirstOrderActorCritic
 from algorithms.config import AlgoConfig
+from harness.envs import make_env
 from harness.results import atomic_write_text, provenance, write_json
 
 CHECKPOINT = "checkpoint.pt"
@@ -34,16 +35,6 @@ INIT_CHECKPOINT = "checkpoint_init.pt"
 
 class RunError(RuntimeError):
     """A run directory or configuration problem, reported as one line."""
-
-
-def _make_env(task_name: str, backend: str, num_envs: int, device: str, seed: int, horizon: int):
-    import backends
-    from tasks import make_task
-    from tasks.env import TaskEnv
-
-    task = make_task(task_name)
-    sim = backends.make(backend, task, num_envs=num_envs, device=device, seed=seed, max_graph_steps=max(64, horizon))
-    return TaskEnv(task, sim)
 
 
 def _rng_state() -> dict:
@@ -138,36 +129,51 @@ def train(
     seed: int = 0,
     device: str = "cpu",
     checkpoint_every: int = 5,
-    resume: bool = False,
     command: str | None = None,
     stream=sys.stdout,
 ) -> Path:
+    """Start a new run in ``run_dir`` (which must not hold one) and train it for ``epochs`` epochs."""
     run_dir = Path(run_dir)
-    config_path, metrics_path, ckpt_path = run_dir / "config.json", run_dir / "metrics.jsonl", run_dir / CHECKPOINT
-    if resume:
-        if not config_path.exists() or not ckpt_path.exists():
-            raise RunError(f"cannot resume {run_dir}: no config.json/checkpoint.pt there")
-        config = json.loads(config_path.read_text())
-        task, backend, seed, device = config["task"], config["backend"], config["seed"], config["device"]
-        algo_config = AlgoConfig.from_dict(config["algo"])
-        config["epochs"] = epochs = max(epochs, config["epochs"]) if epochs else config["epochs"]
-        config.setdefault("resumed", []).append(provenance(command))  # the original command stays
-    elif config_path.exists():
+    if (run_dir / "config.json").exists():
         raise RunError(f"{run_dir} already holds a run; pass --resume to continue it or choose another --out")
-    else:
-        algo_config = algo_config.replace(max_epochs=algo_config.max_epochs or epochs)
-        config = {
-            "task": task,
-            "backend": backend,
-            "seed": seed,
-            "device": device,
-            "epochs": epochs,
-            "algo": dataclasses.asdict(algo_config),
-            "provenance": provenance(command),
-        }
+    algo_config = algo_config.replace(max_epochs=algo_config.max_epochs or epochs)
+    config = {
+        "task": task,
+        "backend": backend,
+        "seed": seed,
+        "device": device,
+        "epochs": epochs,
+        "algo": algo_config.as_dict(),
+        "provenance": provenance(command),
+    }
+    return _run(run_dir, config, algo_config, resume=False, checkpoint_every=checkpoint_every, stream=stream)
+
+
+def resume(
+    run_dir: str | Path,
+    epochs: int | None = None,
+    checkpoint_every: int = 5,
+    command: str | None = None,
+    stream=sys.stdout,
+) -> Path:
+    """Continue the run in ``run_dir`` from its checkpoint, up to ``epochs`` in total (default: as planned)."""
+    run_dir = Path(run_dir)
+    config_path = run_dir / "config.json"
+    if not config_path.exists() or not (run_dir / CHECKPOINT).exists():
+        raise RunError(f"cannot resume {run_dir}: no config.json/checkpoint.pt there")
+    config = json.loads(config_path.read_text())
+    algo_config = AlgoConfig.from_dict(config["algo"])
+    config["epochs"] = max(epochs, config["epochs"]) if epochs else config["epochs"]
+    config.setdefault("resumed", []).append(provenance(command))  # the original command stays
+    return _run(run_dir, config, algo_config, resume=True, checkpoint_every=checkpoint_every, stream=stream)
+
+
+def _run(run_dir: Path, config: dict, algo_config: AlgoConfig, resume: bool, checkpoint_every: int, stream) -> Path:
+    task, backend, seed, device, epochs = (config[k] for k in ("task", "backend", "seed", "device", "epochs"))
+    config_path, metrics_path, ckpt_path = run_dir / "config.json", run_dir / "metrics.jsonl", run_dir / CHECKPOINT
     torch.manual_seed(seed)
     random.seed(seed)
-    env = _make_env(task, backend, algo_config.num_envs, device, seed, algo_config.horizon)
+    env = make_env(task, backend, algo_config.num_envs, device, seed, algo_config.horizon)
     config.setdefault("physics", dataclasses.asdict(env.task.physics))
     run_dir.mkdir(parents=True, exist_ok=True)
     write_json(config_path, config)
@@ -242,7 +248,7 @@ def evaluate(
         for i in range(seeds):
             eval_seed = 10_000 + i  # disjoint from training seeds
             torch.manual_seed(eval_seed)
-            env = _make_env(config["task"], config["backend"], n, config["device"], eval_seed, cfg.horizon)
+            env = make_env(config["task"], config["backend"], n, config["device"], eval_seed, cfg.horizon)
             algo = FirstOrderActorCritic(cfg, env.obs_dim, env.action_dim)
             load_checkpoint(run_dir / name, algo)
             obs = env.reset()

@@ -1,52 +1,26 @@
 """Backend-neutral task definitions, found by name.
 
-Built-in tasks are listed in ``TASKS``; third-party packages add tasks through the entry-point
-group ``diffsim_bench.tasks`` (``name = "pkg.module:TaskClass"``), loaded only when asked for.
+Every task, built-in or third-party, is registered through the entry-point group
+``diffsim_bench.tasks`` (``name = "pkg.module:TaskClass"`` in the package's pyproject.toml) and
+loaded only when asked for. This package never imports ``backends``: tasks and adapters share
+only :mod:`simcore`.
 """
 
 from __future__ import annotations
 
-from importlib.metadata import entry_points
+from simcore import PhysicsSpec, PluginRegistry, UnknownNameError
+from tasks.base import Task
 
-from tasks.ant import Ant
-from tasks.base import PhysicsSpec, Task
-
-TASKS: dict[str, type[Task]] = {"ant": Ant}
 ENTRY_POINT_GROUP = "diffsim_bench.tasks"
+REGISTRY = PluginRegistry(ENTRY_POINT_GROUP, Task, "task")
+UnknownTaskError = UnknownNameError
 
-
-class UnknownTaskError(KeyError):
-    def __init__(self, name: str):
-        self.name = name
-        super().__init__(name)
-
-    def __str__(self) -> str:
-        return f"unknown task {self.name!r}; choose from: {', '.join(available())}"
-
-
-def _entry_points() -> dict:
-    return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
-
-
-def available() -> list[str]:
-    """Names of every task, built-in and plugged in, sorted."""
-    return sorted(set(TASKS) | set(_entry_points()))
-
-
-def task_class(name: str) -> type[Task]:
-    if name in TASKS:
-        return TASKS[name]
-    eps = _entry_points()
-    if name not in eps:
-        raise UnknownTaskError(name)
-    cls = eps[name].load()
-    if not (isinstance(cls, type) and issubclass(cls, Task)):
-        raise TypeError(f"entry point {name!r} -> {cls!r} is not a Task subclass")
-    return cls
+available = REGISTRY.available
+task_class = REGISTRY.get
 
 
 def make_task(name: str, physics: PhysicsSpec | None = None) -> Task:
     return task_class(name)(physics)
 
 
-__all__ = ["TASKS", "PhysicsSpec", "Task", "UnknownTaskError", "available", "make_task", "task_class"]
+__all__ = ["PhysicsSpec", "Task", "UnknownTaskError", "available", "make_task", "task_class"]

@@ -12,9 +12,8 @@ import math
 
 import torch
 
-from backends.contract import ControlKind, SimState, StateLayout
+from simcore import ControlKind, SimState, StateLayout, quat_from_angle_axis, quat_mul, quat_rotate
 from tasks.base import ASSET_DIR, Task
-from tasks.rotations import quat_from_angle_axis, quat_mul, quat_rotate
 
 # hip_1, ankle_1, hip_2, ankle_2, hip_3, ankle_3, hip_4, ankle_4 (the asset's joint order)
 DEFAULT_DOF_Q = (0.0, 1.0, 0.0, -1.0, 0.0, -1.0, 0.0, 1.0)

@@ -1,7 +1,9 @@
 """A stateful vector environment: one task on one adapter, with episodes and automatic resets.
 
 This is the layer algorithms talk to (harness -> algorithm -> this env -> adapter -> engine).
-Observations and rewards are differentiable w.r.t. the actions through the adapter's ``step``.
+Observations and rewards are differentiable w.r.t. the actions through the adapter; one step is
+:func:`tasks.rollout.transition`, the same function the gradient checks differentiate. ``sim`` is
+an adapter instance (``backends.BatchedSim``); this module does not import backends.
 """
 
 from __future__ import annotations
@@ -10,8 +12,9 @@ from dataclasses import dataclass
 
 import torch
 
-from backends.contract import BatchedSim, SimState
+from simcore import SimState
 from tasks.base import Task
+from tasks.rollout import transition
 
 
 @dataclass
@@ -30,7 +33,7 @@ class StepResult:
 
 
 class TaskEnv:
-    def __init__(self, task: Task, sim: BatchedSim, episode_length: int | None = None):
+    def __init__(self, task: Task, sim, episode_length: int | None = None):
         self.task = task
         self.sim = sim
         self.num_envs = sim.num_envs
@@ -81,10 +84,9 @@ class TaskEnv:
         return self.obs
 
     def step(self, actions: torch.Tensor) -> StepResult:
-        state = self.sim.step(actions)
-        actions = torch.clamp(actions, -1.0, 1.0)
-        obs = self.task.observe(state, actions)
-        reward = self.task.reward(state, obs, actions)
+        state, obs, reward = transition(self.sim, self.sim.state, actions)
+        self.sim.state = state
+        self.sim.step_count += 1
         self.steps += 1
         self.returns += reward.detach()
         terminated = self.task.terminated(state, obs)

@@ -16,7 +16,7 @@ from algorithms.grad_variance import gradient_variance  # noqa: E402
 from algorithms.returns import actor_loss_from_returns, critic_targets, segment_starts  # noqa: E402
 from backends import make  # noqa: E402
 from harness.cli import main as cli  # noqa: E402
-from harness.train import RunError, save_checkpoint, train  # noqa: E402
+from harness.train import RunError, resume, save_checkpoint, train  # noqa: E402
 from tasks import make_task  # noqa: E402
 from tasks.env import TaskEnv  # noqa: E402
 
@@ -311,7 +311,7 @@ def test_resume_continues_the_same_run(tmp_path, monkeypatch):
     monkeypatch.undo()
     # the last periodic checkpoint was epoch 2; the interrupt wrote one at epoch 3
     assert len(_rows(tmp_path / "cut" / "metrics.jsonl")) == 3
-    train(tmp_path / "cut", "", "", cfg, epochs=0, resume=True, checkpoint_every=2)
+    resume(tmp_path / "cut", checkpoint_every=2)
     full, cut = _rows(tmp_path / "full" / "metrics.jsonl"), _rows(tmp_path / "cut" / "metrics.jsonl")
     assert [r["epoch"] for r in cut] == [0, 1, 2, 3]
     for a, b in zip(full, cut, strict=True):
@@ -325,7 +325,7 @@ def test_resume_drops_metric_rows_written_after_the_checkpoint(tmp_path):
     train(tmp_path / "run", "ant", "newton", cfg, epochs=2, seed=0, checkpoint_every=1)
     with (tmp_path / "run" / "metrics.jsonl").open("a") as fh:  # a crash after a row, before its checkpoint
         fh.write(json.dumps({"epoch": 2, "stale": True}) + "\n")
-    train(tmp_path / "run", "", "", cfg, epochs=3, resume=True, checkpoint_every=1)
+    resume(tmp_path / "run", epochs=3, checkpoint_every=1)
     rows = _rows(tmp_path / "run" / "metrics.jsonl")
     assert [r["epoch"] for r in rows] == [0, 1, 2] and "stale" not in rows[-1]
 
@@ -346,6 +346,6 @@ def test_train_cli_records_every_hyperparameter_and_eval_writes_json(tmp_path):
         cli(["train", "--task", "ant", "--backend", "newton", "--algo", "shac", "--epochs", "1", "--out", str(out)])
         == 2
     )
-    assert cli(["eval", "--run", str(out), "--seeds", "2", "--num-envs", "2", "--max-steps", "5"]) == 0
+    assert cli(["eval", "--run", str(out), "--eval-seeds", "2", "--num-envs", "2", "--max-steps", "5"]) == 0
     result = json.loads((out / "eval.json").read_text())
     assert len(result["final"]["per_seed"]) == 2 and result["num_envs"] == 2

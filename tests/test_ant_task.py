@@ -7,9 +7,8 @@ import math
 import pytest
 import torch
 
-from backends.contract import SimState
+from simcore import SimState, quat_from_angle_axis, quat_mul, quat_rotate
 from tasks import make_task
-from tasks.rotations import quat_from_angle_axis, quat_mul, quat_rotate
 
 
 @pytest.fixture

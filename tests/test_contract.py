@@ -14,10 +14,10 @@ import pytest
 import torch
 
 import backends
-from backends import InvalidActionError, NonFiniteStateError
+from backends import BackendError, InvalidActionError, NonFiniteStateError
 from harness.gradcheck import DEFAULT_TOLERANCE, gradcheck
+from simcore import ControlKind, quat_from_angle_axis, quat_mul
 from tasks import make_task
-from tasks.rotations import quat_from_angle_axis, quat_mul
 
 BACKENDS = backends.available()
 N = 3
@@ -150,6 +150,21 @@ def test_non_finite_simulation_is_reported_per_env(adapter):
     with pytest.raises(NonFiniteStateError) as info, torch.no_grad():
         sim.step(torch.zeros(N, task.action_dim))
     assert info.value.env_ids == [1]
+
+
+def test_an_unsupported_control_kind_is_refused_at_build_time_in_one_line(adapter):
+    cls, task = adapter
+    supported = cls.supported_control_kinds()
+    assert ControlKind.JOINT_TORQUE in supported or supported, "an adapter must support some control kind"
+    missing = [kind for kind in ControlKind if kind not in supported]
+    if not missing:
+        pytest.skip("this adapter supports every control kind")
+    other = type(f"{type(task).__name__}Other", (type(task),), {"control_kind": missing[0]})()
+    with pytest.raises(BackendError) as info:
+        cls(other, num_envs=1)
+    message = str(info.value)
+    assert "\n" not in message and missing[0].value in message
+    assert all(kind.value in message for kind in supported)
 
 
 @pytest.mark.parametrize("kind", ["shape", "dtype", "nan", "inf"])

@@ -18,8 +18,8 @@ pytest.importorskip("mujoco_warp")
 from backends import BackendError, ControlKind, InvalidActionError, NonFiniteStateError, make  # noqa: E402
 from backends.mujoco_warp import MujocoWarpSim, build_spec, engine_to_generalized, generalized_to_engine  # noqa: E402
 from harness.gradcheck import DEFAULT_TOLERANCE, gradcheck  # noqa: E402
+from simcore import quat_from_angle_axis, quat_mul  # noqa: E402
 from tasks import make_task  # noqa: E402
-from tasks.rotations import quat_from_angle_axis, quat_mul  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -233,7 +233,7 @@ def test_unsupported_controls_and_particles_are_refused(sim, ant):
     class PositionTargetAnt(type(ant)):
         control_kind = ControlKind.JOINT_POSITION_TARGET
 
-    with pytest.raises(BackendError, match="not supported"):
+    with pytest.raises(BackendError, match="supports control kinds joint_torque; task .ant. needs"):
         make("mujoco_warp", PositionTargetAnt(), num_envs=1)
     q, qd = ant.default_state()
     with pytest.raises(BackendError, match="particles"):

@@ -135,5 +135,5 @@ def test_unsupported_control_kinds_are_refused_at_build(ant):
     class PositionTargetAnt(type(ant)):
         control_kind = ControlKind.JOINT_POSITION_TARGET
 
-    with pytest.raises(BackendError, match="not supported"):
+    with pytest.raises(BackendError, match="supports control kinds joint_torque; task .ant. needs"):
         make("newton", PositionTargetAnt(), num_envs=1)

@@ -9,6 +9,7 @@ from importlib.metadata import EntryPoint
 
 import pytest
 
+import simcore
 from backends import registry
 from harness.cli import main
 
@@ -18,20 +19,27 @@ def _run(*args: str) -> subprocess.CompletedProcess:
 
 
 def test_builtin_adapter_is_found_through_its_entry_point():
-    assert "newton" in registry._entry_points()  # declared in pyproject, not hard-coded
+    assert "newton" in registry.REGISTRY._entry_points()  # declared in pyproject, not hard-coded
     assert "newton" in registry.available()
+
+
+def test_builtin_task_is_found_through_its_entry_point_like_a_plugin_task():
+    import tasks
+
+    assert "ant" in tasks.REGISTRY._entry_points()  # no hard-coded dict of built-in tasks
+    assert tasks.task_class("ant").__module__ == "tasks.ant"
 
 
 def test_third_party_entry_point_is_loaded_by_name(monkeypatch):
     fake = EntryPoint(name="thirdparty", value="backends.newton:NewtonSim", group=registry.ENTRY_POINT_GROUP)
-    monkeypatch.setattr(registry, "entry_points", lambda group: [fake] if group == registry.ENTRY_POINT_GROUP else [])
+    monkeypatch.setattr(simcore, "entry_points", lambda group: [fake] if group == registry.ENTRY_POINT_GROUP else [])
     assert registry.available() == ["thirdparty"]
     assert registry.get("thirdparty").__name__ == "NewtonSim"
 
 
 def test_entry_point_that_is_not_an_adapter_is_refused(monkeypatch):
     fake = EntryPoint(name="bogus", value="tasks.ant:Ant", group=registry.ENTRY_POINT_GROUP)
-    monkeypatch.setattr(registry, "entry_points", lambda group: [fake])
+    monkeypatch.setattr(simcore, "entry_points", lambda group: [fake])
     with pytest.raises(TypeError, match="not a BatchedSim"):
         registry.get("bogus")
 

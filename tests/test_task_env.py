@@ -61,3 +61,20 @@ def test_rewards_are_differentiable_through_the_window_until_cut(env):
     r = env.step(torch.zeros(3, 8)).reward.sum()
     (g,) = torch.autograd.grad(r, a0, allow_unused=True)
     assert g is None
+
+
+def test_the_rollout_objective_is_the_env_s_own_rewards():
+    """tasks.rollout.rollout_reward (what gradcheck differentiates) sums exactly the env's rewards, for a
+    task whose reward depends on the current action (the point-mass plug-in: -|x|^2 - 0.01 |u|^2)."""
+    import backends
+    from tasks.rollout import rollout_reward
+
+    if "pointmass" not in backends.available():
+        pytest.skip("the test plugin is not installed here (tox -e py installs it)")
+    task = make_task("pointmass")
+    env = TaskEnv(task, make("pointmass", task, num_envs=4, seed=3))
+    start = env.sim.state
+    actions = torch.rand(5, 4, task.action_dim, generator=torch.Generator().manual_seed(0)) * 2 - 1
+    env_total = sum(env.step(a).reward.double() for a in actions)
+    helper_total = rollout_reward(env.sim, start, actions)
+    torch.testing.assert_close(helper_total, env_total)

@@ -12,8 +12,8 @@ import torch
 pytest.importorskip("newton")
 
 from backends import StateLayout, make  # noqa: E402
-from backends.contract import ControlKind, SimState  # noqa: E402
-from tasks.base import PhysicsSpec, Task  # noqa: E402
+from simcore import ControlKind, PhysicsSpec, SimState  # noqa: E402
+from tasks.base import Task  # noqa: E402
 
 
 def go2_torque_task(urdf):

@@ -89,8 +89,10 @@ import torch
 import warp as wp
 
 from backends._warp import warp_device
-from backends.contract import BackendError, BatchedSim, ControlKind, SimState, StateLayout
-from tasks.rotations import (
+from backends.contract import BackendError, BatchedSim
+from simcore import (
+    SimState,
+    StateLayout,
     quat_conjugate,
     quat_from_rotation_vector,
     quat_mul,
@@ -144,8 +146,8 @@ class MujocoWarpSim(BatchedSim):
     steps; ``fd_chunk_envs`` (default: all envs) envs per finite-difference batch; ``nconmax`` (default
     32) contacts and ``njmax`` (default 160) constraint rows per world (the Ant's 13 geoms on the plane
     make at most 25 contacts, 4 rows each in the pyramidal cone, plus 8 joint-limit rows; an overflow
-    raises :class:`BackendError`). Other options (the harness's ``max_graph_steps``) are ignored:
-    the Jacobians live in the autograd graph, so there is no buffer ring to size.
+    raises :class:`BackendError`). The contract's ``max_graph_steps`` is not needed: the Jacobians
+    live in the autograd graph, so there is no buffer ring to size. Control kinds: joint torques.
     """
 
     name = "mujoco_warp"
@@ -153,8 +155,6 @@ class MujocoWarpSim(BatchedSim):
     # -- construction ---------------------------------------------------------------------
     def _build(self) -> None:
         task = self.task
-        if task.control_kind != ControlKind.JOINT_TORQUE:
-            raise BackendError(f"control kind {task.control_kind.value!r} is not supported by mujoco_warp yet")
         if not task.layout.floating_base or task.layout.num_particles:
             raise BackendError("the mujoco_warp adapter supports floating-base tasks without particles only")
         self.fd_eps_state = float(self.options.get("fd_eps_state", 1e-2))
@@ -230,14 +230,15 @@ class MujocoWarpSim(BatchedSim):
     def _split(self, engine: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return engine[:, : self.layout.nq], engine[:, self.layout.nq :]
 
-    def _check_control(self, control: torch.Tensor) -> torch.Tensor:
+    def _control_joint_torque(self, control: torch.Tensor) -> torch.Tensor:
+        """JOINT_TORQUE: the hinge torques, applied as ``qfrc_applied`` at every substep."""
         expected = (self.num_envs, self.layout.num_dofs)
         if tuple(control.shape) != expected:
             raise BackendError(f"control must have shape {expected}, got {tuple(control.shape)}")
         return control.to(self.device, torch.float32)
 
     def simulate(self, state: SimState, control: torch.Tensor) -> SimState:
-        control = self._check_control(control)
+        control = self.engine_control(control)
         if torch.is_grad_enabled() and (state.engine.requires_grad or control.requires_grad):
             engine = _MujocoWarpStep.apply(self, state.engine, control)
         else:

@@ -32,7 +32,8 @@ import torch
 import warp as wp
 
 from backends._warp import warp_device
-from backends.contract import BackendError, BatchedSim, ControlKind, SimState, StateLayout
+from backends.contract import BackendError, BatchedSim
+from simcore import SimState, StateLayout
 
 _POSE = 7  # wp.transform: position (3) + quaternion xyzw (4)
 _TWIST = 6  # wp.spatial_vector: COM linear velocity (3) + angular velocity (3), world frame
@@ -55,10 +56,10 @@ class _Frame:
 class NewtonSim(BatchedSim):
     """A task on Newton's semi-implicit solver; see the module docstring.
 
-    Options: ``max_graph_steps`` (default 64) frames kept replayable; ``contact_gap`` (default
-    0.05 m) contact-candidate distance; ``angular_damping`` (default 0.05), ``joint_attach_ke``
-    (1e4) and ``joint_attach_kd`` (1e2): the solver's own defaults, exposed for experiments.
-    Controls: joint torques only, so far.
+    ``max_graph_steps`` (a contract argument) frames stay replayable. Options: ``contact_gap``
+    (default 0.05 m) contact-candidate distance; ``angular_damping`` (default 0.05),
+    ``joint_attach_ke`` (1e4) and ``joint_attach_kd`` (1e2): the solver's own defaults, exposed for
+    experiments. Control kinds: joint torques (``JOINT_POSITION_TARGET`` comes with the Go2 task).
     """
 
     name = "newton"
@@ -67,11 +68,6 @@ class NewtonSim(BatchedSim):
     def _build(self) -> None:
         task = self.task
         phys = task.physics
-        if task.control_kind != ControlKind.JOINT_TORQUE:
-            raise BackendError(f"control kind {task.control_kind.value!r} is not supported by the newton adapter yet")
-        self.max_graph_steps = int(self.options.get("max_graph_steps", 64))
-        if self.max_graph_steps < 1:
-            raise ValueError("max_graph_steps must be >= 1")
         contact_gap = float(self.options.get("contact_gap", 0.05))
         self.wp_device = warp_device(self.device)
 
@@ -238,17 +234,21 @@ class NewtonSim(BatchedSim):
         return grad_engine_in, grad_joint_f
 
     def simulate(self, state: SimState, control: torch.Tensor) -> SimState:
-        joint_f = self._control_to_joint_f(control)
+        joint_f = self.engine_control(control)
         if torch.is_grad_enabled() and (state.engine.requires_grad or joint_f.requires_grad):
             engine, joint_q, joint_qd = _NewtonStep.apply(self, state.engine, joint_f)
         else:
             engine, joint_q, joint_qd = self._forward_no_grad(state.engine, joint_f)
         return SimState(joint_q=joint_q, joint_qd=joint_qd, engine=engine)
 
-    def _control_to_joint_f(self, control: torch.Tensor) -> torch.Tensor:
-        """Generalized forces for every dof: zero on the free root, the control on the rest."""
+    def _control_joint_torque(self, control: torch.Tensor) -> torch.Tensor:
+        """JOINT_TORQUE: generalized forces for every dof, zero on the free root, the control on the rest."""
         root = self.layout.nv - self.layout.num_dofs
         return torch.nn.functional.pad(control, (root, 0))
+
+    def bare_engine_rollout(self, horizon: int) -> float:
+        """Seconds per forward+backward window on raw Newton/Warp (see :func:`bare_tape_rollout`)."""
+        return bare_tape_rollout(self, horizon)
 
     # -- generalized -> maximal coordinates -----------------------------------------------
     def state_from_generalized(self, joint_q, joint_qd, particle_q=None, particle_qd=None) -> SimState:

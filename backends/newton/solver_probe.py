@@ -1,4 +1,4 @@
-"""Evidence for the Newton solver and contact settings: ``python -m backends.newton.solver_probe``.
+"""Evidence for the Newton solver and contact settings (run by ``python -m harness solver-probe``).
 
 For each configuration: the Ant, ``num_envs`` envs, random joint torques, 32 control steps of
 16 substeps recorded on one ``wp.Tape``, then the gradient of the summed final torso x-position
@@ -7,15 +7,13 @@ torso height range, whether the gradient is finite, and its largest entry. A hea
 configuration has a finite forward pass and a finite gradient of moderate size; an exploding
 adjoint shows up as a gradient many orders of magnitude larger than the one-step gradient.
 
-The output is a JSON list; README ("Newton solver choice") quotes it.
+The harness writes the list as JSON; README ("Newton solver choice") quotes it. This module is
+engine code only: it imports neither the harness nor a task (the asset and physics come as arguments).
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 import re
-import sys
 import warnings
 from pathlib import Path
 
@@ -25,7 +23,7 @@ import numpy as np
 import warp as wp
 
 import backends._warp  # noqa: E402,F401  (quiet Warp before newton starts it)
-from tasks import make_task  # noqa: E402
+from simcore import PhysicsSpec
 
 
 def probe(
@@ -35,14 +33,13 @@ def probe(
     ke: float,
     kd: float,
     kf: float,
+    phys: PhysicsSpec,
     num_envs: int = 64,
     warmup_frames: int = 60,
     frames: int = 32,
     seed: int = 0,
 ) -> dict:
     """One configuration; ``density`` rewrites every density attribute of the MJCF text."""
-    task = make_task("ant")
-    phys = task.physics
     cfg = newton.ModelBuilder.ShapeConfig(ke=ke, kd=kd, kf=kf, mu=phys.contact_mu, gap=0.05)
     xml = Path(asset).read_text()
     if density is not None:
@@ -123,38 +120,16 @@ def _torso_x(body_q: wp.array[wp.transform], bodies_per_env: int, loss: wp.array
     wp.atomic_add(loss, 0, wp.transform_get_translation(body_q[env * bodies_per_env])[0])
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m backends.newton.solver_probe", description=__doc__.split("\n")[0])
-    parser.add_argument("--num-envs", type=int, default=64)
-    parser.add_argument("--out", default=None, help="also write the JSON here")
-    args = parser.parse_args(argv)
-    ant = str(make_task("ant").asset_path)
+def probe_all(ant_asset: str, phys: PhysicsSpec, num_envs: int = 64):
+    """Every configuration of README's table, one result dict at a time."""
     shipped = str(newton.examples.get_asset("nv_ant.xml"))
     runs = [
-        ("semi_implicit", ant, None, 4e4, 1e3, 3e2),  # the adapter's configuration (tasks.base.PhysicsSpec)
-        ("featherstone", ant, None, 4e4, 1e3, 3e2),
-        ("semi_implicit", ant, None, 4e4, 1e4, 3e2),  # contact damping at the top of SHAC's range
-        ("semi_implicit", ant, None, 4e4, 1e3, 3e3),  # friction slope at the top of SHAC's range
+        ("semi_implicit", ant_asset, None, 4e4, 1e3, 3e2),  # the adapter's configuration (the task's PhysicsSpec)
+        ("featherstone", ant_asset, None, 4e4, 1e3, 3e2),
+        ("semi_implicit", ant_asset, None, 4e4, 1e4, 3e2),  # contact damping at the top of SHAC's range
+        ("semi_implicit", ant_asset, None, 4e4, 1e3, 3e3),  # friction slope at the top of SHAC's range
         ("semi_implicit", shipped, None, 4e4, 1e3, 3e2),  # Newton's nv_ant.xml, density 5
         ("semi_implicit", shipped, 1000, 4e4, 1e3, 3e2),  # nv_ant.xml at density 1000
     ]
-    results = []
     for solver, asset, density, ke, kd, kf in runs:
-        result = probe(solver, asset, density, ke, kd, kf, num_envs=args.num_envs)
-        print(json.dumps(result), flush=True)
-        results.append(result)
-    if args.out:
-        from harness.results import provenance, write_json  # the shared results writer (an entry script only)
-
-        write_json(
-            args.out,
-            {
-                "runs": results,
-                "provenance": provenance(" ".join(["python -m backends.newton.solver_probe", *sys.argv[1:]])),
-            },
-        )
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
+        yield probe(solver, asset, density, ke, kd, kf, phys, num_envs=num_envs)

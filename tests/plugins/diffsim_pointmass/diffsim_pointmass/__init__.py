@@ -12,8 +12,9 @@ from __future__ import annotations
 
 import torch
 
-from backends.contract import BackendError, BatchedSim, ControlKind, SimState, StateLayout
-from tasks.base import PhysicsSpec, Task
+from backends.contract import BackendError, BatchedSim
+from simcore import ControlKind, PhysicsSpec, SimState, StateLayout
+from tasks.base import Task
 
 
 class PointMassTask(Task):
@@ -70,7 +71,12 @@ class PointMassSim(BatchedSim):
         joint_qd = joint_qd.to(self.device, torch.float32)
         return SimState(joint_q=joint_q, joint_qd=joint_qd, engine=torch.cat((joint_q, joint_qd), dim=-1))
 
+    def _control_joint_torque(self, control: torch.Tensor) -> torch.Tensor:
+        """JOINT_TORQUE: the force on the point, as given."""
+        return control
+
     def simulate(self, state: SimState, control: torch.Tensor) -> SimState:
+        control = self.engine_control(control)
         x, v = state.engine[:, :2], state.engine[:, 2:]
         dt = self.task.physics.sim_dt
         for _ in range(self.task.physics.substeps):

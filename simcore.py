@@ -1,0 +1,295 @@
+"""The backend-neutral vocabulary that tasks and adapters share, and nothing else.
+
+``tasks/`` (what the learning problem is) and ``backends/`` (how an engine simulates it) both
+import this module and never each other: the state layout (:class:`SimState`,
+:class:`StateLayout`), how controls drive an engine (:class:`ControlKind`), the physical
+constants every adapter must honour (:class:`PhysicsSpec`, including the PD law of
+``JOINT_POSITION_TARGET``), what an adapter may read of a task (:class:`TaskSpec`), quaternion
+helpers, and the entry-point registry both packages use to find plug-ins by name.
+
+State layout (z up, quaternions ``(x, y, z, w)``, everything in the world frame):
+
+* ``joint_q``  (N, nq): ``[root_pos(3), root_quat(4), dof_q(J)]`` for a floating base, else ``dof_q``.
+* ``joint_qd`` (N, nv): ``[root_lin_vel(3), root_ang_vel(3), dof_qd(J)]``; the linear velocity is
+  that of the root body's centre of mass, the angular velocity is in the world frame.
+* ``particle_q``, ``particle_qd`` (N, P, 3): particles of soft bodies (``None`` without any).
+* ``engine`` (N, D): the adapter's own full state (maximal coordinates, solver extras), the only
+  thing an adapter's ``simulate`` reads. The other fields are views of it, kept consistent by the adapter.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import math
+from dataclasses import dataclass
+from importlib.metadata import entry_points
+from pathlib import Path
+from typing import Protocol
+
+import torch
+
+
+class ControlKind(enum.Enum):
+    """How a task's control tensor drives the engine."""
+
+    JOINT_TORQUE = "joint_torque"  # (N, J) generalized forces on the actuated dofs
+    JOINT_POSITION_TARGET = "joint_position_target"  # (N, J) PD targets, gains in the task's physics spec
+    TET_ACTIVATION = "tet_activation"  # (N, T) per-tetrahedron muscle activation of a soft body
+
+
+@dataclass(frozen=True)
+class StateLayout:
+    """Static sizes of the backend-neutral state for one env."""
+
+    num_dofs: int  # actuated/articulated degrees of freedom after the root (J)
+    floating_base: bool = True
+    num_particles: int = 0
+    num_tets: int = 0
+
+    @property
+    def nq(self) -> int:
+        return (7 if self.floating_base else 0) + self.num_dofs
+
+    @property
+    def nv(self) -> int:
+        return (6 if self.floating_base else 0) + self.num_dofs
+
+
+@dataclass
+class SimState:
+    """Batched backend-neutral state; see the module docstring for the layout."""
+
+    joint_q: torch.Tensor
+    joint_qd: torch.Tensor
+    engine: torch.Tensor
+    particle_q: torch.Tensor | None = None
+    particle_qd: torch.Tensor | None = None
+
+    # -- views of a floating base ---------------------------------------------------------
+    @property
+    def root_pos(self) -> torch.Tensor:
+        return self.joint_q[:, 0:3]
+
+    @property
+    def root_quat(self) -> torch.Tensor:
+        return self.joint_q[:, 3:7]
+
+    @property
+    def root_lin_vel(self) -> torch.Tensor:
+        return self.joint_qd[:, 0:3]
+
+    @property
+    def root_ang_vel(self) -> torch.Tensor:
+        return self.joint_qd[:, 3:6]
+
+    def dof_q(self, layout: StateLayout) -> torch.Tensor:
+        return self.joint_q[:, layout.nq - layout.num_dofs :]
+
+    def dof_qd(self, layout: StateLayout) -> torch.Tensor:
+        return self.joint_qd[:, layout.nv - layout.num_dofs :]
+
+    # -- whole-state helpers --------------------------------------------------------------
+    def tensors(self) -> dict[str, torch.Tensor]:
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if getattr(self, f.name) is not None}
+
+    def map(self, fn) -> SimState:
+        """Apply ``fn`` to every tensor field."""
+        return SimState(**{k: fn(v) for k, v in self.tensors().items()})
+
+    def detach(self) -> SimState:
+        return self.map(torch.Tensor.detach)
+
+    def select(self, env_mask: torch.Tensor, other: SimState) -> SimState:
+        """Rows of ``other`` where ``env_mask`` is true, rows of ``self`` elsewhere."""
+        mine = self.tensors()
+        theirs = other.tensors()
+        out = {}
+        for name, value in mine.items():
+            mask = env_mask.reshape((-1,) + (1,) * (value.dim() - 1))
+            out[name] = torch.where(mask, theirs[name], value)
+        return SimState(**out)
+
+    def finite_envs(self) -> torch.Tensor:
+        """(N,) bool: true where every entry of the env's state is finite."""
+        ok = None
+        for value in self.tensors().values():
+            env_ok = torch.isfinite(value.detach()).reshape(value.shape[0], -1).all(dim=1)
+            ok = env_ok if ok is None else ok & env_ok
+        return ok
+
+
+@dataclass(frozen=True)
+class PhysicsSpec:
+    """Engine-neutral physical constants of a task; every adapter must apply them.
+
+    ``JOINT_POSITION_TARGET`` control follows one PD law, evaluated by every adapter at every
+    substep (:meth:`pd_torque` is its reference): tau = clip(kp (q* - q) - kd qd, -limit, limit).
+    """
+
+    frame_dt: float = 1.0 / 60.0  # one control step
+    substeps: int = 16  # integrator steps per control step
+    gravity: float = -9.81  # along z
+    ground_plane: bool = True  # a z-up plane through the origin
+    contact_ke: float = 4.0e4  # penalty contact: normal stiffness
+    contact_kd: float = 1.0e3  # normal damping (1e4 makes the adjoint blow up: README)
+    contact_kf: float = 3.0e2  # tangential (friction) slope; 3e3 makes policy-driven adjoints explode (README)
+    contact_mu: float = 0.75  # Coulomb friction coefficient
+    joint_limit_ke: float = 1.0e3
+    joint_limit_kd: float = 1.0e1
+    joint_damping: float = 1.0  # passive viscous damping on articulated dofs
+    pd_kp: float = 0.0  # JOINT_POSITION_TARGET: stiffness (N m / rad)
+    pd_kd: float = 0.0  # JOINT_POSITION_TARGET: damping (N m s / rad)
+    torque_limits: tuple[float, ...] = ()  # JOINT_POSITION_TARGET: |tau_j| <= limit_j (N m); () = none
+
+    def __post_init__(self) -> None:
+        if isinstance(self.substeps, bool) or not isinstance(self.substeps, int) or self.substeps < 1:
+            raise ValueError(f"PhysicsSpec.substeps must be an integer >= 1, got {self.substeps!r}")
+        for name in ("frame_dt",):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ValueError(f"PhysicsSpec.{name} must be a finite number > 0, got {value!r}")
+        for name in ("contact_ke", "contact_kd", "contact_kf", "contact_mu", "joint_limit_ke", "joint_limit_kd"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"PhysicsSpec.{name} must be a finite number >= 0, got {value!r}")
+        for name in ("joint_damping", "pd_kp", "pd_kd", "gravity"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value)):
+                raise ValueError(f"PhysicsSpec.{name} must be a finite number, got {value!r}")
+        if any(not (math.isfinite(limit) and limit > 0) for limit in self.torque_limits):
+            raise ValueError(f"PhysicsSpec.torque_limits must be positive and finite, got {self.torque_limits}")
+
+    @property
+    def sim_dt(self) -> float:
+        return self.frame_dt / self.substeps
+
+    def pd_torque(self, target: torch.Tensor, dof_q: torch.Tensor, dof_qd: torch.Tensor) -> torch.Tensor:
+        """The PD law of ``JOINT_POSITION_TARGET``: clip(kp (q* - q) - kd qd) per joint, (N, J)."""
+        tau = self.pd_kp * (target - dof_q) - self.pd_kd * dof_qd
+        if not self.torque_limits:
+            return tau
+        if len(self.torque_limits) != tau.shape[-1]:
+            raise ValueError(f"{len(self.torque_limits)} torque limits for {tau.shape[-1]} joints")
+        limit = torch.tensor(self.torque_limits, dtype=tau.dtype, device=tau.device)
+        return torch.maximum(torch.minimum(tau, limit), -limit)
+
+
+class TaskSpec(Protocol):
+    """What an adapter may read of a task (``tasks.base.Task`` provides it): data, no observations."""
+
+    name: str
+    asset_path: Path
+    asset_format: str  # "mjcf" | "urdf" | "tetmesh" | anything an adapter of its own understands
+    layout: StateLayout
+    control_kind: ControlKind
+    action_dim: int
+    physics: PhysicsSpec
+
+    def sample_initial_state(self, num_envs: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+        """Randomised generalized initial coordinates: ``joint_q`` (N, nq), ``joint_qd`` (N, nv)."""
+        ...
+
+    def actions_to_control(self, actions: torch.Tensor) -> torch.Tensor:
+        """Map policy actions (N, action_dim) to the control tensor of ``control_kind``."""
+        ...
+
+
+class PluginRegistry:
+    """Classes found by name through an entry-point group, loaded lazily, checked against a base class.
+
+    Built-in and third-party plug-ins are found the same way: a package declares
+    ``[project.entry-points."GROUP"] name = "module:Class"``. Classes registered in-process with
+    :meth:`register` (tests, notebooks) shadow entry points of the same name.
+    """
+
+    def __init__(self, group: str, base: type, kind: str):
+        self.group, self.base, self.kind = group, base, kind
+        self._runtime: dict[str, type] = {}
+
+    def _entry_points(self) -> dict:
+        return {ep.name: ep for ep in entry_points(group=self.group)}
+
+    def available(self) -> list[str]:
+        """Every registered name, sorted (nothing is imported)."""
+        return sorted(set(self._entry_points()) | set(self._runtime))
+
+    def register(self, name: str, cls: type) -> None:
+        self._check(name, cls)
+        self._runtime[name] = cls
+
+    def get(self, name: str) -> type:
+        if name in self._runtime:
+            return self._runtime[name]
+        eps = self._entry_points()
+        if name not in eps:
+            raise UnknownNameError(self.kind, name, self.available())
+        cls = eps[name].load()
+        self._check(name, cls)
+        return cls
+
+    def _check(self, name: str, cls) -> None:
+        if not (isinstance(cls, type) and issubclass(cls, self.base)):
+            raise TypeError(f"{self.kind} {name!r} -> {cls!r} is not a {self.base.__name__} subclass")
+
+
+class UnknownNameError(KeyError):
+    """A backend or task name nobody registered; the message lists the valid ones."""
+
+    def __init__(self, kind: str, name: str, choices: list[str]):
+        self.kind, self.name, self.choices = kind, name, choices
+        super().__init__(name)
+
+    def __str__(self) -> str:
+        return f"unknown {self.kind} {self.name!r}; choose from: {', '.join(self.choices) or '(none registered)'}"
+
+
+# -- quaternions, stored as (x, y, z, w) -------------------------------------------------------
+
+
+def quat_rotate(q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """Rotate vectors ``v`` (..., 3) by unit quaternions ``q`` (..., 4)."""
+    xyz, w = q[..., :3], q[..., 3:4]
+    t = 2.0 * torch.linalg.cross(xyz, v, dim=-1)
+    return v + w * t + torch.linalg.cross(xyz, t, dim=-1)
+
+
+def quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Hamilton product ``a * b`` (apply ``b`` first, then ``a``)."""
+    ax, ay, az, aw = a.unbind(-1)
+    bx, by, bz, bw = b.unbind(-1)
+    return torch.stack(
+        (
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+            aw * bw - ax * bx - ay * by - az * bz,
+        ),
+        dim=-1,
+    )
+
+
+def quat_from_angle_axis(angle: torch.Tensor, axis: torch.Tensor) -> torch.Tensor:
+    """Quaternions for rotations by ``angle`` (...,) about unit ``axis`` (..., 3)."""
+    half = 0.5 * angle.unsqueeze(-1)
+    return torch.cat((axis * torch.sin(half), torch.cos(half)), dim=-1)
+
+
+def quat_conjugate(q: torch.Tensor) -> torch.Tensor:
+    """Inverse of unit quaternions ``q`` (..., 4)."""
+    return torch.cat((-q[..., :3], q[..., 3:]), dim=-1)
+
+
+def quat_from_rotation_vector(rotvec: torch.Tensor) -> torch.Tensor:
+    """Unit quaternions for rotation vectors (..., 3) (axis * angle); zero maps to the identity."""
+    angle = rotvec.norm(dim=-1)
+    axis = rotvec / angle.clamp_min(1e-30).unsqueeze(-1)
+    return quat_from_angle_axis(angle, axis)
+
+
+def xyzw_to_wxyz(q: torch.Tensor) -> torch.Tensor:
+    return torch.cat((q[..., 3:], q[..., :3]), dim=-1)
+
+
+def wxyz_to_xyzw(q: torch.Tensor) -> torch.Tensor:
+    return torch.cat((q[..., 1:], q[..., :1]), dim=-1)

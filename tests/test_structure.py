@@ -1,0 +1,163 @@
+"""The layering, the shared vocabulary, the task registry, the rollout objective, packaging and the CLI docs."""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import json
+import shutil
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+import torch
+
+import simcore
+from algorithms.config import AlgoConfig
+from harness.cli import build_parser, main
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _imports(path: Path) -> set[str]:
+    """Top-level and dotted module names imported anywhere in ``path`` (TYPE_CHECKING blocks included)."""
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            names.add(node.module)
+    return names
+
+
+def _modules(package: str) -> list[Path]:
+    return sorted((ROOT / package).rglob("*.py"))
+
+
+def test_tasks_never_import_backends_and_adapters_never_import_tasks_or_the_harness():
+    for path in _modules("tasks"):
+        bad = {m for m in _imports(path) if m.split(".")[0] in ("backends", "harness", "algorithms")}
+        assert not bad, f"{path.relative_to(ROOT)} imports {bad}"
+    for path in _modules("backends"):
+        bad = {m for m in _imports(path) if m.split(".")[0] in ("tasks", "harness", "algorithms")}
+        assert not bad, f"{path.relative_to(ROOT)} imports {bad}"
+    for path in _modules("algorithms"):
+        bad = {m for m in _imports(path) if m.split(".")[0] in ("backends", "harness", "newton", "warp", "mujoco")}
+        assert not bad, f"{path.relative_to(ROOT)} imports {bad}"
+    vocabulary = {m.split(".")[0] for m in _imports(ROOT / "simcore.py")}
+    assert not vocabulary & {"tasks", "backends", "harness", "algorithms"}
+
+
+def test_engines_are_imported_only_inside_their_adapter_packages():
+    engines = {"newton", "warp", "mujoco", "mujoco_warp"}
+    for package in ("tasks", "algorithms", "harness"):
+        for path in _modules(package):
+            bad = {m for m in _imports(path) if m.split(".")[0] in engines}
+            assert not bad, f"{path.relative_to(ROOT)} imports {bad}"
+    assert not {m.split(".")[0] for m in _imports(ROOT / "simcore.py")} & engines
+
+
+def test_the_pd_law_is_specified_once_in_the_physics_spec():
+    spec = simcore.PhysicsSpec(pd_kp=30.0, pd_kd=0.5, torque_limits=(23.7, 45.43))
+    target = torch.tensor([[1.0, 0.0], [0.01, 0.0]])
+    q = torch.zeros(2, 2)
+    qd = torch.tensor([[0.0, 4.0], [0.0, -1.0]])
+    tau = spec.pd_torque(target, q, qd)
+    torch.testing.assert_close(tau, torch.tensor([[23.7, -2.0], [0.3, 0.5]]))  # clipped at the hip limit
+    with pytest.raises(ValueError, match="torque limits"):
+        spec.pd_torque(torch.zeros(1, 3), torch.zeros(1, 3), torch.zeros(1, 3))
+
+
+@pytest.mark.parametrize("bad", [{"substeps": 0}, {"substeps": -2}, {"substeps": 2.5}, {"frame_dt": 0.0}])
+def test_physics_spec_refuses_a_frozen_or_backwards_simulation(bad):
+    with pytest.raises(ValueError, match="PhysicsSpec"):
+        simcore.PhysicsSpec(**bad)
+
+
+def test_every_asset_kind_ships_in_the_wheel(tmp_path):
+    """Package data covers MJCF, URDF, meshes and tet meshes (built from a copy of the tree, not in place)."""
+    pytest.importorskip("setuptools")
+    tree = tmp_path / "src"
+    shutil.copytree(ROOT, tree, ignore=shutil.ignore_patterns(".git", ".tox", "results", "build", "*.egg-info"))
+    kinds = {"probe.urdf": "<robot/>", "meshes/probe.obj": "v 0 0 0\n", "meshes/probe.stl": "solid\n"}
+    kinds |= {"tetmesh/probe.msh": "$MeshFormat\n", "tetmesh/probe.npz": "", "probe.xml": "<mujoco/>"}
+    for name, text in kinds.items():
+        (tree / "tasks" / "assets" / name).parent.mkdir(parents=True, exist_ok=True)
+        (tree / "tasks" / "assets" / name).write_text(text)
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "wheel",
+            "--no-deps",
+            "--no-build-isolation",
+            "-q",
+            "-w",
+            str(tmp_path),
+            str(tree),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    (wheel,) = tmp_path.glob("diffsim_bench-*.whl")
+    names = set(zipfile.ZipFile(wheel).namelist())
+    for name in kinds:
+        assert f"tasks/assets/{name}" in names, name
+    assert "tasks/assets/ant.xml" in names and "simcore.py" in names
+
+
+def test_every_hyperparameter_flag_documents_itself():
+    train = build_parser()._subparsers._group_actions[0].choices["train"]
+    helps = {a.dest: a.help for a in train._actions}
+    for f in dataclasses.fields(AlgoConfig):
+        assert f.metadata.get("help"), f"AlgoConfig.{f.name} has no documentation"
+        if f.name not in ("algo", "num_envs", "horizon"):  # shared flags, declared in harness.cli.FLAGS
+            assert helps.get(f.name) == f.metadata["help"], f.name
+
+
+def test_every_flag_is_declared_once():
+    """No verb declares a flag of its own that FLAGS already defines (one type, one help per flag)."""
+    from harness.cli import FLAGS
+
+    parser = build_parser()
+    for verb, sub in parser._subparsers._group_actions[0].choices.items():
+        for action in sub._actions:
+            if action.dest in FLAGS and action.dest not in ("windows", "num_envs"):
+                assert action.help.startswith(FLAGS[action.dest]["help"]), (verb, action.dest)
+
+
+def test_algo_config_is_frozen_and_validated_once():
+    cfg = AlgoConfig()
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cfg.gamma = 0.5
+    for bad in ({"actor_return": "gae"}, {"critic_iterations": 2.5}, {"betas": (1.5, 0.9)}, {"min_lr": -1.0}):
+        with pytest.raises(ValueError):
+            cfg.replace(**bad)
+    assert AlgoConfig.from_dict(json.loads(json.dumps(cfg.as_dict()))) == cfg
+
+
+_TRAIN = ["train", "--task", "ant", "--backend", "newton", "--algo", "shac", "--epochs", "1", "--out", "x"]
+
+
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["train", "--resume", "somewhere", "--gamma", "0.5"], "drop --gamma"),
+        ([*_TRAIN, "--actor-return", "gae"], "invalid choice"),
+        ([*_TRAIN, "--critic-iterations", "2.5"], "expected an integer"),
+        ([*_TRAIN, "--target-critic-alpha", "1.5"], "target_critic_alpha must be in [0, 1]"),
+        ([*_TRAIN, "--betas", "1.5", "0.9"], "betas must lie in [0, 1)"),
+        ([*_TRAIN, "--min-lr", "-1"], "min_lr must be in"),
+    ],
+)
+def test_bad_training_input_is_one_line(args, needle, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("error: ") and needle in err, err
+    assert not (tmp_path / "x").exists()
