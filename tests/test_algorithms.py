@@ -195,11 +195,11 @@ def test_tdfixed_with_lambda_one_trains_and_starts_like_shac(tmp_path):
 def test_lambda_optimiser_has_no_hidden_weight_decay():
     """1e: with a zero gradient phi stays put (torch's AdamW default would pull it towards 0)."""
     algo = _algo("shac-tdadpt")
-    assert algo.lambda_opt.param_groups[0]["weight_decay"] == algo.cfg.lambda_weight_decay == 0.0
     before = float(algo.phi.detach())
     algo.phi.grad = torch.zeros_like(algo.phi)
     algo.lambda_opt.step()
     assert float(algo.phi.detach()) == before
+    assert algo.lambda_opt.param_groups[0]["weight_decay"] == 0.0 == algo.cfg.lambda_weight_decay
 
 
 def test_lambda_update_moves_only_lambda(env):
