@@ -4,7 +4,7 @@ Engine packages (warp, newton, mujoco, ...) are imported only inside the adapter
 and only when an adapter is loaded.
 """
 
-from backends.contract import BackendError, BatchedSim, InvalidActionError, NonFiniteStateError
+from backends.contract import BackendError, BatchedSim, InvalidActionError, InvalidStateError, NonFiniteStateError
 from backends.registry import UnknownBackendError, available, get, make, register
 from simcore import ControlKind, SimState, StateLayout
 
@@ -13,6 +13,7 @@ __all__ = [
     "BatchedSim",
     "ControlKind",
     "InvalidActionError",
+    "InvalidStateError",
     "NonFiniteStateError",
     "SimState",
     "StateLayout",

@@ -1,12 +1,51 @@
-"""What every Warp-based adapter shares: quiet Warp start-up and the torch -> Warp device name."""
+"""What every Warp-based adapter shares: a quiet Warp start-up and the torch -> Warp device name.
+
+Warp's native library prints "Warp CUDA warning: Could not find or load the NVIDIA CUDA driver" to
+the process's stderr (file descriptor 2, from C) whenever it starts on a machine without a GPU
+driver: on the CPU machines this benchmark runs on, that line is noise that turns every one-line
+``error:`` into two. :func:`_init_quietly` starts Warp with fd 2 captured and re-emits everything
+Warp printed except exactly that line, so real warnings still show.
+"""
 
 from __future__ import annotations
+
+import os
+import sys
+import tempfile
 
 import torch
 import warp as wp
 
+NO_DRIVER_LINE = "Could not find or load the NVIDIA CUDA driver"
+
 wp.config.quiet = True  # no per-module compile lines
 wp.config.log_level = wp.LOG_WARNING  # no start-up banner; warnings still show
+
+
+def _init_quietly() -> None:
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as captured:
+        os.dup2(captured.fileno(), 2)
+        try:
+            wp.init()
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
+        captured.seek(0)
+        text = captured.read().decode("utf-8", errors="replace")
+    kept = without_driver_line(text)
+    if kept:
+        sys.stderr.write(kept)
+
+
+def without_driver_line(text: str) -> str:
+    """``text`` less the no-driver line (and only that line)."""
+    return "".join(line for line in text.splitlines(keepends=True) if NO_DRIVER_LINE not in line)
+
+
+_init_quietly()
 
 
 def warp_device(device: torch.device) -> str:

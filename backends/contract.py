@@ -36,6 +36,7 @@ reach (the harness passes the window length h). Adapters whose gradients need pe
 
 from __future__ import annotations
 
+import functools
 from abc import ABC, abstractmethod
 
 import torch
@@ -49,6 +50,10 @@ class BackendError(RuntimeError):
 
 class InvalidActionError(BackendError, ValueError):
     """Actions of the wrong shape or dtype, or with NaN/inf entries."""
+
+
+class InvalidStateError(BackendError, ValueError):
+    """Generalized coordinates of the wrong type or shape, or a root quaternion of zero length."""
 
 
 class NonFiniteStateError(BackendError, FloatingPointError):
@@ -71,6 +76,35 @@ class BatchedSim(ABC):
     name: str = ""
     #: the task the contract test suite (tests/test_contract.py) runs this adapter on
     contract_task: str = "ant"
+
+    def __init_subclass__(cls, **kwargs):
+        """Every adapter's ``state_from_generalized`` checks its input first (:meth:`check_generalized`)."""
+        super().__init_subclass__(**kwargs)
+        impl = cls.__dict__.get("state_from_generalized")
+        if impl is None or getattr(impl, "checks_input", False):
+            return
+
+        @functools.wraps(impl)
+        def checked(self, joint_q, joint_qd, particle_q=None, particle_qd=None):
+            self.check_generalized(joint_q, joint_qd)
+            return impl(self, joint_q, joint_qd, particle_q, particle_qd)
+
+        checked.checks_input = True
+        cls.state_from_generalized = checked
+
+    def check_generalized(self, joint_q, joint_qd) -> None:
+        """Refuse generalized coordinates an engine would misread, with one line naming what is expected."""
+        layout, n = self.layout, self.num_envs
+        for name, value, width in (("joint_q", joint_q, layout.nq), ("joint_qd", joint_qd, layout.nv)):
+            if not isinstance(value, torch.Tensor) or not value.is_floating_point():
+                raise InvalidStateError(f"{name} must be a floating-point torch.Tensor, got {type(value).__name__}")
+            if tuple(value.shape) != (n, width):
+                raise InvalidStateError(f"{name} must have shape {(n, width)}, got {tuple(value.shape)}")
+        if layout.floating_base:
+            norms = joint_q.detach()[:, 3:7].norm(dim=1)
+            bad = (norms < 1e-8).nonzero().flatten().tolist()
+            if bad:
+                raise InvalidStateError(f"root quaternion (x, y, z, w) has zero length in env(s) {bad[:16]}")
 
     def __init__(
         self,
@@ -146,6 +180,11 @@ class BatchedSim(ABC):
 
     @state.setter
     def state(self, value: SimState) -> None:
+        if not isinstance(value, SimState):
+            raise InvalidStateError(f"state must be a SimState, got {type(value).__name__}")
+        for name, tensor in value.tensors().items():
+            if tensor.shape[0] != self.num_envs:
+                raise InvalidStateError(f"state.{name} has {tensor.shape[0]} rows for {self.num_envs} envs")
         self._state = value
 
     def _initial_state(self) -> SimState:

@@ -1,3 +1,24 @@
-from harness.cli import main
+"""``python -m harness``: the command line, with signals handled from the first line on.
+
+Until a training loop takes over SIGINT/SIGTERM (to finish its epoch and checkpoint), a signal ends
+the process at once with one line and exit code 128 + signal: nothing is half-written then, because
+every file this program writes outside an epoch is replaced atomically.
+"""
+
+import os
+import signal
+import sys
+
+
+def _stop_now(signum, frame):
+    sys.stderr.write(f"stopped: {signal.Signals(signum).name}\n")
+    sys.stderr.flush()
+    os._exit(128 + signum)
+
+
+for _signum in (signal.SIGINT, signal.SIGTERM):
+    signal.signal(_signum, _stop_now)
+
+from harness.cli import main  # noqa: E402  (after the handlers: imports take seconds)
 
 raise SystemExit(main())

@@ -105,7 +105,7 @@ FLAGS: dict[str, dict] = {
     "windows": {"type": _positive_int, "help": "timed windows per variant (the best is kept)"},
     "eval_seeds": {"type": _positive_int, "default": 10, "help": "evaluation seeds (10000, 10001, ...)"},
     "max_steps": {"type": _positive_int, "help": "cap on steps per evaluation episode"},
-    "checkpoint_every": {"type": _positive_int, "default": 5, "help": "epochs between checkpoints"},
+    "checkpoint_every": {"type": _positive_int, "default": 1, "help": "epochs between checkpoints"},
     "tolerance": {"type": _positive_float, "help": "max relative gradient error allowed (default 2e-2)"},
 }
 
@@ -247,6 +247,19 @@ def _validate_names(backend: str | None = None, task: str | None = None) -> None
         raise BadInput(f"unknown task {task!r}; choose from: {', '.join(tasks.available())}")
 
 
+def _check_device(device: str) -> None:
+    import torch
+
+    try:
+        parsed = torch.device(device)
+    except (RuntimeError, ValueError):
+        raise BadInput(f"unknown device {device!r}; use cpu or cuda[:N]") from None
+    if parsed.type not in ("cpu", "cuda"):
+        raise BadInput(f"device {device!r} is not supported; use cpu or cuda[:N]")
+    if parsed.type == "cuda" and not torch.cuda.is_available():
+        raise BadInput(f"device {device!r}: this machine has no CUDA device; use cpu")
+
+
 def _make_sim(args, horizon: int):
     # Imports here, not at module level: `list` and argument errors must not load an engine.
     from harness.envs import make_sim
@@ -256,6 +269,23 @@ def _make_sim(args, horizon: int):
         return make_sim(args.backend, make_task(args.task), args.num_envs, args.device, args.seed, horizon)
     except (RuntimeError, ValueError) as exc:
         raise BadInput(f"cannot build {args.backend}/{args.task} on {args.device}: {exc}") from exc
+
+
+def _check_output_file(out: str) -> None:
+    """A result file (or prefix) we may write: not empty, not a directory, in a writable place."""
+    import os
+    from pathlib import Path
+
+    path = Path(out)
+    if not out.strip():
+        raise BadInput("--out is empty: name a file")
+    if path.is_dir():
+        raise BadInput(f"--out {out} is a directory; name a file")
+    parent = path.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+        raise BadInput(f"--out {out}: {parent} is not a writable directory")
 
 
 def _algo_config(args, name: str):
@@ -293,6 +323,7 @@ def cmd_gradcheck(args) -> int:
     from harness.gradcheck import DEFAULT_TOLERANCE, gradcheck
 
     _validate_names(args.backend, args.task)
+    _check_device(args.device)
     sim = _make_sim(args, horizon=args.steps)
     tolerance = args.tolerance or DEFAULT_TOLERANCE
     start_height = None
@@ -313,6 +344,9 @@ def cmd_throughput(args) -> int:
     from harness.throughput import measure
 
     _validate_names(args.backend, args.task)
+    _check_device(args.device)
+    if args.out:
+        _check_output_file(args.out)
     sim = _make_sim(args, horizon=args.horizon)
     print(f"throughput {args.backend}/{args.task}: {args.num_envs} envs, windows of {args.horizon} steps", flush=True)
     result = measure(sim, horizon=args.horizon, windows=args.windows, seed=args.seed)
@@ -329,41 +363,37 @@ def cmd_throughput(args) -> int:
 
 
 def cmd_train(args) -> int:
-    from harness.train import RunError, resume, train
+    from harness.train import resume, train
 
-    try:
-        if args.resume:
-            given = [
-                "--" + name.replace("_", "-")
-                for name, value in vars(args).items()
-                if value is not None
-                and name not in ("verb", "resume", "epochs", "checkpoint_every")
-                and value != FLAGS.get(name, {}).get("default")
-            ]
-            if given:
-                raise BadInput(f"--resume continues the run as configured; drop {', '.join(given)} (only --epochs)")
-            resume(args.resume, args.epochs, checkpoint_every=args.checkpoint_every, command=_command())
-            return 0
-        missing = [name for name in ("backend", "task", "algo", "epochs", "out") if getattr(args, name) is None]
-        if missing:
-            raise BadInput(
-                "train needs " + ", ".join("--" + m.replace("_", "-") for m in missing) + " (or --resume DIR)"
-            )
-        _validate_names(args.backend, args.task)
-        cfg = _algo_config(args, args.algo)
-        train(
-            args.out,
-            args.task,
-            args.backend,
-            cfg,
-            args.epochs,
-            seed=args.seed,
-            device=args.device,
-            checkpoint_every=args.checkpoint_every,
-            command=_command(),
-        )
-    except RunError as exc:
-        raise BadInput(str(exc)) from None
+    if args.resume:
+        given = [
+            "--" + name.replace("_", "-")
+            for name, value in vars(args).items()
+            if value is not None
+            and name not in ("verb", "resume", "epochs", "checkpoint_every")
+            and value != FLAGS.get(name, {}).get("default")
+        ]
+        if given:
+            raise BadInput(f"--resume continues the run as configured; drop {', '.join(given)} (only --epochs)")
+        resume(args.resume, args.epochs, checkpoint_every=args.checkpoint_every, command=_command())
+        return 0
+    missing = [name for name in ("backend", "task", "algo", "epochs", "out") if getattr(args, name) is None]
+    if missing:
+        raise BadInput("train needs " + ", ".join("--" + m.replace("_", "-") for m in missing) + " (or --resume DIR)")
+    _validate_names(args.backend, args.task)
+    _check_device(args.device)
+    cfg = _algo_config(args, args.algo)
+    train(
+        args.out,
+        args.task,
+        args.backend,
+        cfg,
+        args.epochs,
+        seed=args.seed,
+        device=args.device,
+        checkpoint_every=args.checkpoint_every,
+        command=_command(),
+    )
     return 0
 
 
@@ -372,8 +402,6 @@ def cmd_eval(args) -> int:
 
     from harness.train import evaluate
 
-    if not (Path(args.run) / "config.json").exists():
-        raise BadInput(f"{args.run} is not a run directory (no config.json)")
     result = evaluate(args.run, seeds=args.eval_seeds, num_envs=args.num_envs, max_steps=args.max_steps)
     print(f"initial policy: mean return {result['initial']['mean_return']:.1f}")
     print(
@@ -388,11 +416,12 @@ def cmd_report(args) -> int:
     from pathlib import Path
 
     from harness.report import write_report
+    from harness.train import read_config
 
     runs = [Path(r) for r in args.runs]
-    missing = [str(r) for r in runs if not (r / "config.json").exists()]
-    if missing:
-        raise BadInput(f"not run directories (no config.json): {', '.join(missing)}")
+    for run in runs:
+        read_config(run)
+    _check_output_file(args.out)
     for path in write_report(runs, args.out, _command(), plot=not args.no_plot):
         print(f"wrote {path}")
     return 0
@@ -405,7 +434,10 @@ def cmd_sweep(args) -> int:
     from harness.train import evaluate, resume, train
 
     _validate_names(args.backend, args.task)
+    _check_device(args.device)
     configs = {name: _algo_config(args, name) for name in args.algos}  # refuse bad input before any training
+    if Path(args.out).exists() and not Path(args.out).is_dir():
+        raise BadInput(f"--out {args.out} is an existing file, not a directory")
     runs = []
     for name, cfg in configs.items():
         for seed in args.seeds:
@@ -428,9 +460,13 @@ def cmd_grad_growth(args) -> int:
 
     from harness.grad_growth import grad_growth, parse_variant
     from harness.results import provenance, write_json
+    from harness.train import read_config
 
+    read_config(Path(args.run))
     if not (Path(args.run) / "checkpoint.pt").exists():
         raise BadInput(f"{args.run} has no checkpoint.pt")
+    if args.out:
+        _check_output_file(args.out)
     variants = args.variant or [""]
     try:
         for v in variants:
@@ -452,6 +488,8 @@ def cmd_crosscheck(args) -> int:
     _validate_names(task=args.task)
     for name in args.backends:
         _validate_names(backend=name)
+    if args.out:
+        _check_output_file(args.out)
     report = crosscheck(args.task, args.backends, num_envs=args.num_envs, steps=args.steps, seed=args.seed)
     print(json.dumps(report["segments"], indent=2))
     if args.out:
@@ -481,12 +519,17 @@ VERBS = {
 
 
 def main(argv: list[str] | None = None) -> int:
+    from harness.results import RunError, RunStopped
+
     try:
         args = build_parser().parse_args(argv)
         return VERBS[args.verb](args)
-    except BadInput as exc:
+    except (BadInput, RunError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except RunStopped as exc:
+        print(f"stopped: {exc}", file=sys.stderr)
+        return 128 + exc.signum
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130

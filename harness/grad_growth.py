@@ -33,7 +33,10 @@ def parse_variant(text: str) -> dict:
         key, _, value = item.partition("=")
         if key not in names:
             raise ValueError(f"unknown physics constant {key!r}; choose from: {', '.join(sorted(names))}")
-        changes[key] = float(value)
+        try:
+            changes[key] = float(value)
+        except ValueError:
+            raise ValueError(f"--variant {key}={value!r}: expected a number") from None
     return changes
 
 

@@ -11,7 +11,7 @@ import json
 import math
 from pathlib import Path
 
-from harness.results import atomic_write_text
+from harness.results import atomic_write_text, read_metrics
 
 COLUMNS = (
     "run",
@@ -37,8 +37,7 @@ COLUMNS = (
 
 
 def _read_rows(run: Path) -> list[dict]:
-    path = run / "metrics.jsonl"
-    return [json.loads(line) for line in path.read_text().splitlines() if line] if path.exists() else []
+    return read_metrics(run / "metrics.jsonl")  # a torn last line (a killed run) is dropped
 
 
 def summarize(run: str | Path) -> dict:

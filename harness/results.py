@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import platform
+import signal
 import subprocess
 import sys
 import tempfile
@@ -13,6 +14,19 @@ from importlib import metadata
 from pathlib import Path
 
 _PACKAGES = ("torch", "warp-lang", "newton", "mujoco", "mujoco-warp", "numpy")
+
+
+class RunError(RuntimeError):
+    """A run directory, output path or configuration problem, reported as one line (exit 2)."""
+
+
+class RunStopped(RuntimeError):
+    """Training stopped on a signal after checkpointing at an epoch boundary (resumable)."""
+
+    def __init__(self, run_dir, epoch: int, signum: int):
+        self.signum = signum
+        name = signal.Signals(signum).name
+        super().__init__(f"{name}: stopped at epoch {epoch} with a checkpoint in {run_dir}; continue with --resume")
 
 
 def _git_commit() -> str | None:
@@ -27,6 +41,41 @@ def _git_commit() -> str | None:
         return out.stdout.strip() or None
     except (OSError, subprocess.SubprocessError):
         return None
+
+
+def _cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def machine() -> dict:
+    """What makes float results machine-specific: CPU model and the thread settings of torch and Warp.
+
+    The same seed gives identical metrics on one machine with the same settings; another CPU or thread
+    count changes the order of float reductions, and training runs then diverge (README).
+    """
+    import torch
+
+    gpus = (
+        [torch.cuda.get_device_name(i) for i in range(torch.cuda.device_count())] if torch.cuda.is_available() else []
+    )
+    return {
+        "platform": platform.platform(),
+        "cpu_model": _cpu_model(),
+        "cpu_count": os.cpu_count(),
+        "processor": platform.machine(),
+        "torch_num_threads": torch.get_num_threads(),
+        "torch_num_interop_threads": torch.get_num_interop_threads(),
+        "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS"),
+        "MKL_NUM_THREADS": os.environ.get("MKL_NUM_THREADS"),
+        "warp_cpu_kernels": "single-threaded (one Warp CPU kernel runs on one thread)",
+        "gpus": gpus,
+    }
 
 
 def provenance(command: str | None = None) -> dict:
@@ -45,9 +94,17 @@ def provenance(command: str | None = None) -> dict:
         "git_commit": _git_commit(),
         "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "python": platform.python_version(),
-        "machine": {"platform": platform.platform(), "cpu_count": os.cpu_count(), "processor": platform.machine()},
+        "machine": machine(),
         "packages": versions,
     }
+
+
+def slow_write_for_tests() -> None:
+    """Tests set DIFFSIM_BENCH_TEST_WRITE_DELAY (seconds) to hold every file write half-done for a while,
+    so that a kill lands inside a write; unset (always, outside those tests) this does nothing."""
+    delay = os.environ.get("DIFFSIM_BENCH_TEST_WRITE_DELAY")
+    if delay:
+        time.sleep(float(delay))
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
@@ -60,6 +117,7 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
             fh.write(text)
             fh.flush()
             os.fsync(fh.fileno())
+        slow_write_for_tests()
         os.chmod(tmp, 0o644)  # mkstemp creates 0600; results are for everyone to read
         os.replace(tmp, path)
     except BaseException:
@@ -70,3 +128,21 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
 
 def write_json(path: str | os.PathLike, payload: dict) -> Path:
     return atomic_write_text(path, json.dumps(payload, indent=2, sort_keys=False) + "\n")
+
+
+def read_metrics(path: Path) -> list[dict]:
+    """Rows of metrics.jsonl; a torn last line (a kill during its write) is dropped."""
+    if not path.exists():
+        return []
+    lines = path.read_text().splitlines()
+    rows = []
+    for i, line in enumerate(lines):
+        if not line:
+            continue
+        try:
+            rows.append(json.loads(line))
+        except ValueError:
+            if i == len(lines) - 1:
+                break  # torn last line
+            raise RunError(f"{path} has a corrupt line {i + 1} (not the last one)") from None
+    return rows

@@ -2,14 +2,24 @@
 
 A run directory holds:
 
-* ``config.json``: every hyperparameter, the task/backend/seed/device, and the command.
+* ``config.json``: every hyperparameter, the task/backend/seed/device, the physics constants and
+  the command; written first, before anything slow, so that from then on the folder is resumable.
+* ``checkpoint_init.pt``: the initial policy and env state (the evaluation baseline, and the epoch-0
+  checkpoint a run resumes from if it was stopped before its first epoch ended).
 * ``metrics.jsonl``: one JSON object per epoch (flushed as written).
-* ``checkpoint.pt``: the latest algorithm + env state (written atomically, never with
-  non-finite weights); ``checkpoint_init.pt``: the initial policy, for evaluation baselines.
+* ``checkpoint.pt``: algorithm, optimisers, env state and every random generator, taken only at an
+  epoch boundary (every ``checkpoint_every`` epochs, default 1), written atomically (temporary file,
+  fsync, rename), never with non-finite weights.
 * ``eval.json``: written by :func:`evaluate`.
 
-``--resume`` reloads the checkpoint, drops metric rows written after it, and continues: the
-env state and every random generator are restored, so the continuation is the same run.
+Interruptions. SIGINT (Ctrl-C) or SIGTERM: the current epoch finishes, a checkpoint is taken at
+that boundary and the process exits (130 / 143); a second signal stops at once, and the folder
+resumes from the last boundary checkpoint. SIGKILL (or a crash) at any moment, including during a
+write, leaves the last complete checkpoint and at most a torn last metrics line. ``resume`` continues
+from ``checkpoint.pt``, else from ``checkpoint_init.pt``, else from scratch with ``config.json``; it
+drops metric rows written after that checkpoint (and a torn last line), and restores the env state
+and every random generator, so the continuation is the same run: its metrics equal an
+uninterrupted run's (wall-time fields aside; tested by killing real processes).
 """
 
 from __future__ import annotations
@@ -18,6 +28,7 @@ import dataclasses
 import json
 import os
 import random
+import signal
 import sys
 import time
 from pathlib import Path
@@ -27,14 +38,21 @@ import torch
 from algorithms.actor_critic import FirstOrderActorCritic
 from algorithms.config import AlgoConfig
 from harness.envs import make_env
-from harness.results import atomic_write_text, provenance, write_json
+from harness.results import (
+    RunError,
+    RunStopped,
+    atomic_write_text,
+    provenance,
+    read_metrics,
+    slow_write_for_tests,
+    write_json,
+)
 
+CONFIG = "config.json"
+METRICS = "metrics.jsonl"
 CHECKPOINT = "checkpoint.pt"
 INIT_CHECKPOINT = "checkpoint_init.pt"
-
-
-class RunError(RuntimeError):
-    """A run directory or configuration problem, reported as one line."""
+WALL_TIME_FIELDS = ("wall_s", "epoch_s", "sim_forward_s", "backward_s", "update_s")
 
 
 def _rng_state() -> dict:
@@ -47,6 +65,7 @@ def _set_rng_state(state: dict) -> None:
 
 
 def save_checkpoint(path: Path, algo: FirstOrderActorCritic, env, progress: dict) -> None:
+    """Write a checkpoint atomically: temporary file, fsync, rename (a kill leaves the old one intact)."""
     if not algo.parameters_finite():
         raise RunError(f"refusing to write {path.name}: the algorithm holds non-finite weights")
     payload = {
@@ -60,12 +79,30 @@ def save_checkpoint(path: Path, algo: FirstOrderActorCritic, env, progress: dict
         "progress": progress,
     }
     tmp = path.with_suffix(".pt.tmp")
-    torch.save(payload, tmp)
+    with tmp.open("wb") as fh:
+        torch.save(payload, fh)
+        fh.flush()
+        os.fsync(fh.fileno())
+    slow_write_for_tests()
     os.replace(tmp, path)
 
 
+def _read_checkpoint(path: Path) -> dict:
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=False)
+        if not isinstance(payload, dict) or not {"algo", "optimizers", "epoch", "rng", "progress"} <= set(payload):
+            raise ValueError("not a diffsim-bench checkpoint")
+        return payload
+    except Exception as exc:  # torch raises assorted types for torn or foreign files
+        detail = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise RunError(
+            f"{path} is unreadable ({detail[:120]}); it was not written by a finished checkpoint: "
+            "start the run again in a new --out"
+        ) from None
+
+
 def load_checkpoint(path: Path, algo: FirstOrderActorCritic, env=None) -> dict:
-    payload = torch.load(path, map_location="cpu", weights_only=False)
+    payload = _read_checkpoint(path)
     algo.load_state_dict(payload["algo"])
     for name, state in payload["optimizers"].items():
         getattr(algo, name).load_state_dict(state)
@@ -75,6 +112,21 @@ def load_checkpoint(path: Path, algo: FirstOrderActorCritic, env=None) -> dict:
     if env is not None:
         _set_rng_state(payload["rng"])
     return payload["progress"]
+
+
+def read_config(run_dir: Path) -> dict:
+    """A run's config.json, or a one-line RunError saying why it cannot be used."""
+    path = Path(run_dir) / CONFIG
+    if not path.is_file():
+        raise RunError(f"{run_dir} is not a run directory (no {CONFIG})")
+    try:
+        config = json.loads(path.read_text())
+        for key in ("task", "backend", "seed", "device", "epochs", "algo"):
+            config[key]  # noqa: B018  (presence check)
+        config["algo_config"] = AlgoConfig.from_dict(config["algo"])
+    except (ValueError, KeyError, TypeError) as exc:
+        raise RunError(f"{path} is unreadable or incomplete ({exc}); start the run again in a new --out") from None
+    return config
 
 
 class _Progress:
@@ -107,17 +159,74 @@ class _Progress:
 
 
 def _append_metrics(path: Path, row: dict) -> None:
+    line = json.dumps(row) + "\n"
     with path.open("a") as fh:
-        fh.write(json.dumps(row) + "\n")
+        half = len(line) // 2
+        fh.write(line[:half])
+        fh.flush()
+        slow_write_for_tests()  # tests widen the window in which a kill tears the line
+        fh.write(line[half:])
         fh.flush()
 
 
 def _truncate_metrics(path: Path, before_epoch: int) -> None:
-    """Drop rows written after the checkpoint being resumed (they will be re-run)."""
+    """Keep only rows of epochs before ``before_epoch`` (later ones are re-run); drop a torn last line."""
     if not path.exists():
         return
-    keep = [line for line in path.read_text().splitlines() if line and json.loads(line)["epoch"] < before_epoch]
-    atomic_write_text(path, "".join(line + "\n" for line in keep))
+    keep = [row for row in read_metrics(path) if row.get("epoch", before_epoch) < before_epoch]
+    atomic_write_text(path, "".join(json.dumps(row) + "\n" for row in keep))
+
+
+class _SignalStop:
+    """SIGINT/SIGTERM: finish the epoch, checkpoint, stop. A second signal stops at once."""
+
+    def __init__(self, stream):
+        self.signum: int | None = None
+        self.stream = stream
+        self.previous: dict = {}
+
+    def __enter__(self):
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            try:
+                self.previous[signum] = signal.signal(signum, self._handle)
+            except ValueError:  # not the main thread: leave signals alone
+                pass
+        return self
+
+    def _handle(self, signum, frame):
+        if self.signum is not None:
+            raise KeyboardInterrupt
+        self.signum = signum
+        name = signal.Signals(signum).name
+        print(f"\n{name}: finishing this epoch, then checkpoint and stop (again to stop now)", file=self.stream)
+
+    def __exit__(self, *exc):
+        for signum, handler in self.previous.items():
+            signal.signal(signum, handler)
+        return False
+
+
+def check_output_dir(out: str | Path) -> Path:
+    """Refuse an output path that cannot hold a new run, before any work starts (one-line RunError)."""
+    if str(out).strip() == "":
+        raise RunError("--out is empty: name a directory for the run")
+    path = Path(out)
+    if path.exists() and not path.is_dir():
+        raise RunError(f"--out {out} is an existing file, not a directory")
+    if (path / CONFIG).exists():
+        raise RunError(f"{out} already holds a run; continue it with --resume {out} or choose another --out")
+    parent = path
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise RunError(f"--out {out}: {parent} is a file, not a directory")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise RunError(f"--out {out}: {parent} is not writable")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RunError(f"--out {out}: cannot create it ({exc.strerror})") from None
+    return path
 
 
 def train(
@@ -128,14 +237,12 @@ def train(
     epochs: int,
     seed: int = 0,
     device: str = "cpu",
-    checkpoint_every: int = 5,
+    checkpoint_every: int = 1,
     command: str | None = None,
     stream=sys.stdout,
 ) -> Path:
     """Start a new run in ``run_dir`` (which must not hold one) and train it for ``epochs`` epochs."""
-    run_dir = Path(run_dir)
-    if (run_dir / "config.json").exists():
-        raise RunError(f"{run_dir} already holds a run; pass --resume to continue it or choose another --out")
+    run_dir = check_output_dir(run_dir)
     algo_config = algo_config.replace(max_epochs=algo_config.max_epochs or epochs)
     config = {
         "task": task,
@@ -146,86 +253,101 @@ def train(
         "algo": algo_config.as_dict(),
         "provenance": provenance(command),
     }
-    return _run(run_dir, config, algo_config, resume=False, checkpoint_every=checkpoint_every, stream=stream)
+    return _run(run_dir, config, algo_config, checkpoint_every=checkpoint_every, stream=stream, fresh=True)
 
 
 def resume(
     run_dir: str | Path,
     epochs: int | None = None,
-    checkpoint_every: int = 5,
+    checkpoint_every: int = 1,
     command: str | None = None,
     stream=sys.stdout,
 ) -> Path:
-    """Continue the run in ``run_dir`` from its checkpoint, up to ``epochs`` in total (default: as planned)."""
+    """Continue the run in ``run_dir`` from its last checkpoint, up to ``epochs`` in total (default: as planned)."""
     run_dir = Path(run_dir)
-    config_path = run_dir / "config.json"
-    if not config_path.exists() or not (run_dir / CHECKPOINT).exists():
-        raise RunError(f"cannot resume {run_dir}: no config.json/checkpoint.pt there")
-    config = json.loads(config_path.read_text())
-    algo_config = AlgoConfig.from_dict(config["algo"])
-    config["epochs"] = max(epochs, config["epochs"]) if epochs else config["epochs"]
+    config = read_config(run_dir)
+    algo_config = config.pop("algo_config")
+    if epochs is not None and epochs < config["epochs"]:
+        raise RunError(f"--epochs {epochs} is fewer than the run's planned {config['epochs']}; give a larger total")
+    _resume_source(run_dir)  # refuse an unreadable checkpoint or metrics file before anything is written
+    read_metrics(run_dir / METRICS)
+    config["epochs"] = epochs or config["epochs"]
     config.setdefault("resumed", []).append(provenance(command))  # the original command stays
-    return _run(run_dir, config, algo_config, resume=True, checkpoint_every=checkpoint_every, stream=stream)
+    return _run(run_dir, config, algo_config, checkpoint_every=checkpoint_every, stream=stream, fresh=False)
 
 
-def _run(run_dir: Path, config: dict, algo_config: AlgoConfig, resume: bool, checkpoint_every: int, stream) -> Path:
+def _resume_source(run_dir: Path) -> Path | None:
+    """The checkpoint a resume starts from: checkpoint.pt, else checkpoint_init.pt, else None (from scratch)."""
+    for name in (CHECKPOINT, INIT_CHECKPOINT):
+        path = run_dir / name
+        if path.exists():
+            _read_checkpoint(path)
+            return path
+    return None
+
+
+def _run(run_dir: Path, config: dict, algo_config: AlgoConfig, checkpoint_every: int, stream, fresh: bool) -> Path:
+    from tasks import make_task
+
     task, backend, seed, device, epochs = (config[k] for k in ("task", "backend", "seed", "device", "epochs"))
-    config_path, metrics_path, ckpt_path = run_dir / "config.json", run_dir / "metrics.jsonl", run_dir / CHECKPOINT
+    config_path, metrics_path, ckpt_path = run_dir / CONFIG, run_dir / METRICS, run_dir / CHECKPOINT
+    config.setdefault("physics", dataclasses.asdict(make_task(task).physics))
+    write_json(config_path, config)  # first, before anything slow: from here on the folder is resumable
     torch.manual_seed(seed)
     random.seed(seed)
     env = make_env(task, backend, algo_config.num_envs, device, seed, algo_config.horizon)
-    config.setdefault("physics", dataclasses.asdict(env.task.physics))
-    run_dir.mkdir(parents=True, exist_ok=True)
-    write_json(config_path, config)
     algo = FirstOrderActorCritic(algo_config, env.obs_dim, env.action_dim)
     progress = {"env_steps": 0, "wall_s": 0.0, "recent_returns": [], "nonfinite_events": 0}
-    if resume:
-        progress = load_checkpoint(ckpt_path, algo, env)
-        _truncate_metrics(metrics_path, algo.epoch)
-        print(f"resuming {run_dir} at epoch {algo.epoch}/{epochs}", file=stream, flush=True)
-    else:
+    source = None if fresh else _resume_source(run_dir)
+    if source is None:
         env.reset()
         save_checkpoint(run_dir / INIT_CHECKPOINT, algo, env, progress)
+        _truncate_metrics(metrics_path, 0)
+    else:
+        progress = load_checkpoint(source, algo, env)
+        _truncate_metrics(metrics_path, algo.epoch)
+        print(f"resuming {run_dir} at epoch {algo.epoch}/{epochs} from {source.name}", file=stream, flush=True)
     bar = _Progress(epochs, algo.epoch, stream)
     from backends.contract import NonFiniteStateError
 
-    try:
-        while algo.epoch < epochs:
-            start = time.perf_counter()
-            try:
-                metrics = algo.train_epoch(env)
-            except NonFiniteStateError as exc:  # the simulation blew up: log it, restart episodes
-                progress["nonfinite_events"] += 1
-                print(f"\nwarning: epoch {algo.epoch}: {exc}; resetting all envs", file=stream, flush=True)
-                env.reset()
-                continue
-            elapsed = time.perf_counter() - start
-            progress["env_steps"] += algo_config.num_envs * algo_config.horizon
-            progress["wall_s"] += elapsed
-            recent = (progress["recent_returns"] + [metrics["train_episode_return"]])[-20:]
-            progress["recent_returns"] = [r for r in recent if r is not None]
-            avg = (
-                sum(progress["recent_returns"]) / len(progress["recent_returns"])
-                if progress["recent_returns"]
-                else None
-            )
-            row = {
-                "epoch": algo.epoch - 1,
-                "env_steps": progress["env_steps"],
-                "wall_s": progress["wall_s"],
-                "epoch_s": elapsed,
-                **metrics,
-                "train_episode_return_avg": avg,
-            }
-            _append_metrics(metrics_path, row)
-            bar.update(algo.epoch - 1, row)
-            if algo.epoch % checkpoint_every == 0 or algo.epoch == epochs:
-                save_checkpoint(ckpt_path, algo, env, progress)
-    except KeyboardInterrupt:
-        save_checkpoint(ckpt_path, algo, env, progress)
-        _truncate_metrics(metrics_path, algo.epoch)
-        print(f"\ninterrupted: checkpoint at epoch {algo.epoch} in {run_dir}; continue with --resume", file=stream)
-        raise
+    with _SignalStop(stream) as stop:
+        try:
+            while algo.epoch < epochs and stop.signum is None:
+                start = time.perf_counter()
+                try:
+                    metrics = algo.train_epoch(env)
+                except NonFiniteStateError as exc:  # the simulation blew up: log it, restart episodes
+                    progress["nonfinite_events"] += 1
+                    print(f"\nwarning: epoch {algo.epoch}: {exc}; resetting all envs", file=stream, flush=True)
+                    env.reset()
+                    continue
+                elapsed = time.perf_counter() - start
+                progress["env_steps"] += algo_config.num_envs * algo_config.horizon
+                progress["wall_s"] += elapsed
+                recent = (progress["recent_returns"] + [metrics["train_episode_return"]])[-20:]
+                progress["recent_returns"] = [r for r in recent if r is not None]
+                avg = (
+                    sum(progress["recent_returns"]) / len(progress["recent_returns"])
+                    if progress["recent_returns"]
+                    else None
+                )
+                row = {
+                    "epoch": algo.epoch - 1,
+                    "env_steps": progress["env_steps"],
+                    "wall_s": progress["wall_s"],
+                    "epoch_s": elapsed,
+                    **metrics,
+                    "train_episode_return_avg": avg,
+                }
+                _append_metrics(metrics_path, row)
+                bar.update(algo.epoch - 1, row)
+                if algo.epoch % checkpoint_every == 0 or algo.epoch == epochs or stop.signum is not None:
+                    save_checkpoint(ckpt_path, algo, env, progress)
+        except KeyboardInterrupt:  # a second signal mid-epoch: no checkpoint of a half-done epoch
+            print(f"\nstopped now: {run_dir} resumes from its last checkpoint with --resume", file=stream)
+            raise
+    if stop.signum is not None and algo.epoch < epochs:
+        raise RunStopped(run_dir, algo.epoch, stop.signum)
     return run_dir
 
 
@@ -239,8 +361,12 @@ def evaluate(
 ) -> dict:
     """Deterministic-policy returns of the first episode of every env, over ``seeds`` eval seeds."""
     run_dir = Path(run_dir)
-    config = json.loads((run_dir / "config.json").read_text())
-    cfg = AlgoConfig.from_dict(config["algo"])
+    config = read_config(run_dir)
+    cfg = config["algo_config"]
+    for name in (INIT_CHECKPOINT, checkpoint):
+        if not (run_dir / name).exists():
+            raise RunError(f"{run_dir} has no {name} yet: train (or --resume) it first")
+        _read_checkpoint(run_dir / name)
     n = num_envs or 2 * cfg.num_envs
     results = {}
     for name in (INIT_CHECKPOINT, checkpoint):

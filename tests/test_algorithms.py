@@ -309,8 +309,9 @@ def test_resume_continues_the_same_run(tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         train(tmp_path / "cut", "ant", "newton", cfg, epochs=4, seed=3, checkpoint_every=2)
     monkeypatch.undo()
-    # the last periodic checkpoint was epoch 2; the interrupt wrote one at epoch 3
+    # an immediate stop takes no checkpoint of a half-done epoch: the last one is epoch 2's
     assert len(_rows(tmp_path / "cut" / "metrics.jsonl")) == 3
+    assert torch.load(tmp_path / "cut" / "checkpoint.pt", weights_only=False)["epoch"] == 2
     resume(tmp_path / "cut", checkpoint_every=2)
     full, cut = _rows(tmp_path / "full" / "metrics.jsonl"), _rows(tmp_path / "cut" / "metrics.jsonl")
     assert [r["epoch"] for r in cut] == [0, 1, 2, 3]
@@ -318,6 +319,16 @@ def test_resume_continues_the_same_run(tmp_path, monkeypatch):
         for key in ("actor_loss", "critic_loss", "lam", "env_steps", "train_episode_return"):
             expected = pytest.approx(b[key], rel=1e-5) if b[key] is not None else None
             assert a[key] == expected, (a["epoch"], key)
+
+
+def test_the_same_seed_gives_identical_metrics_on_one_machine(tmp_path):
+    cfg = preset("sapo-tdadpt").replace(num_envs=4, horizon=4, critic_iterations=1)
+    rows = []
+    for name in ("a", "b"):
+        train(tmp_path / name, "ant", "newton", cfg, epochs=2, seed=5)
+        wall = {"wall_s", "epoch_s", "sim_forward_s", "backward_s", "update_s"}
+        rows.append([{k: v for k, v in r.items() if k not in wall} for r in _rows(tmp_path / name / "metrics.jsonl")])
+    assert rows[0] == rows[1] and len(rows[0]) == 2
 
 
 def test_resume_drops_metric_rows_written_after_the_checkpoint(tmp_path):

@@ -161,3 +161,25 @@ def test_bad_training_input_is_one_line(args, needle, capsys, tmp_path, monkeypa
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("error: ") and needle in err, err
     assert not (tmp_path / "x").exists()
+
+
+def test_warp_starts_quietly_on_a_cpu_machine_but_keeps_other_warnings():
+    from backends._warp import NO_DRIVER_LINE, without_driver_line
+
+    noisy = f"Warp CUDA warning: {NO_DRIVER_LINE}. GPU execution will not be available.\nWarp warning: real\n"
+    assert without_driver_line(noisy) == "Warp warning: real\n"
+    out = subprocess.run(
+        [sys.executable, "-c", "import backends.newton, backends.mujoco_warp"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert out.returncode == 0 and NO_DRIVER_LINE not in out.stderr, out.stderr
+
+
+def test_provenance_says_which_machine_and_threads():
+    from harness.results import provenance
+
+    machine = provenance("x")["machine"]
+    assert machine["cpu_model"] and machine["torch_num_threads"] >= 1
+    assert {"OMP_NUM_THREADS", "torch_num_interop_threads", "cpu_count"} <= set(machine)

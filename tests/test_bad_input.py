@@ -1,0 +1,256 @@
+"""A corpus of malformed input: every case gets exit 2 (CLI) or a typed exception (API), one line naming
+what is wrong and what is valid, no traceback, and nothing written or overwritten."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+import torch
+
+pytest.importorskip("newton")
+
+from algorithms.config import preset  # noqa: E402
+from backends import InvalidActionError, InvalidStateError, make  # noqa: E402
+from harness.cli import main  # noqa: E402
+from harness.train import train  # noqa: E402
+from simcore import PhysicsSpec  # noqa: E402
+from tasks import make_task  # noqa: E402
+
+ANT = ["--task", "ant", "--backend", "newton"]
+TRAIN = ["train", *ANT, "--algo", "shac", "--epochs", "1", "--num-envs", "4", "--horizon", "4"]
+
+
+@pytest.fixture(scope="module")
+def template(tmp_path_factory) -> Path:
+    """A finished one-epoch run that each case copies and damages."""
+    run = tmp_path_factory.mktemp("template") / "run"
+    cfg = preset("shac").replace(num_envs=4, horizon=4, critic_iterations=1)
+    train(run, "ant", "newton", cfg, epochs=1, seed=0, stream=open("/dev/null", "w"))
+    return run
+
+
+def _snapshot(root: Path) -> dict:
+    return {p.relative_to(root): (p.read_bytes(), p.stat().st_mtime_ns) for p in root.rglob("*") if p.is_file()}
+
+
+def _truncate(path: Path) -> None:
+    path.write_bytes(path.read_bytes()[: len(path.read_bytes()) // 2])
+
+
+# (case id, args with RUN = a damaged copy of the template run and FILE = an existing file, damage)
+CLI_CASES = [
+    ("unknown verb", ["fly"], None, "invalid choice"),
+    ("train without --out", ["train", *ANT, "--algo", "shac", "--epochs", "1"], None, "needs --out"),
+    (
+        "unknown backend",
+        ["train", "--task", "ant", "--backend", "bullet", "--algo", "shac", "--epochs", "1", "--out", "o"],
+        None,
+        "unknown backend",
+    ),
+    (
+        "unknown task",
+        ["train", "--task", "dog", "--backend", "newton", "--algo", "shac", "--epochs", "1", "--out", "o"],
+        None,
+        "unknown task",
+    ),
+    ("unknown algo", ["train", *ANT, "--algo", "ppo", "--epochs", "1", "--out", "o"], None, "unknown algorithm"),
+    ("zero envs", [*TRAIN, "--num-envs", "0", "--out", "o"], None, "positive integer"),
+    ("text envs", [*TRAIN, "--num-envs", "many", "--out", "o"], None, "positive integer"),
+    ("negative horizon", [*TRAIN, "--horizon", "-1", "--out", "o"], None, "positive integer"),
+    ("zero epochs", ["train", *ANT, "--algo", "shac", "--epochs", "0", "--out", "o"], None, "positive integer"),
+    ("gamma above 1", [*TRAIN, "--gamma", "1.5", "--out", "o"], None, "gamma must be in (0, 1]"),
+    ("gamma nan", [*TRAIN, "--gamma", "nan", "--out", "o"], None, "finite number"),
+    ("lambda above 1", [*TRAIN, "--lam", "1.5", "--out", "o"], None, "lam must be in [0, 1]"),
+    (
+        "adaptive lambda of 1",
+        ["train", *ANT, "--algo", "shac-tdadpt", "--epochs", "1", "--lam", "1", "--out", "o"],
+        None,
+        "lam must be in (0, 1)",
+    ),
+    ("fractional iterations", [*TRAIN, "--critic-iterations", "2.5", "--out", "o"], None, "expected an integer"),
+    ("negative iterations", [*TRAIN, "--critic-iterations", "-1", "--out", "o"], None, "critic_iterations"),
+    ("beta above 1", [*TRAIN, "--betas", "1.5", "0.9", "--out", "o"], None, "betas must lie in [0, 1)"),
+    ("one beta", [*TRAIN, "--betas", "0.9", "--out", "o"], None, "expected 2 arguments"),
+    ("negative learning rate", [*TRAIN, "--actor-lr", "-1", "--out", "o"], None, "actor_lr must be > 0"),
+    ("negative min_lr", [*TRAIN, "--min-lr", "-1", "--out", "o"], None, "min_lr must be in"),
+    (
+        "negative skip threshold",
+        [*TRAIN, "--max-grad-norm-skip", "-1", "--out", "o"],
+        None,
+        "max_grad_norm_skip must be > 0",
+    ),
+    ("zero clip", [*TRAIN, "--actor-grad-clip", "0", "--out", "o"], None, "actor_grad_clip must be > 0"),
+    (
+        "polyak above 1",
+        [*TRAIN, "--target-critic-alpha", "1.5", "--out", "o"],
+        None,
+        "target_critic_alpha must be in [0, 1]",
+    ),
+    ("unknown return", [*TRAIN, "--actor-return", "gae", "--out", "o"], None, "invalid choice"),
+    ("lambda every 1/0.3 epochs", [*TRAIN, "--lambda-iterations", "0.3", "--out", "o"], None, "1/k"),
+    ("groups not dividing N", [*TRAIN, "--grad-var-groups", "3", "--out", "o"], None, "grad_var_groups"),
+    ("zero hidden width", [*TRAIN, "--actor-hidden", "0", "--out", "o"], None, "hidden widths"),
+    ("negative weight decay", [*TRAIN, "--weight-decay", "-0.1", "--out", "o"], None, "weight_decay must be >= 0"),
+    ("bogus bool", [*TRAIN, "--obs-norm", "maybe", "--out", "o"], None, "true or false"),
+    ("empty out", [*TRAIN, "--out", ""], None, "--out is empty"),
+    ("out is a file", [*TRAIN, "--out", "FILE"], None, "is an existing file"),
+    ("out below a file", [*TRAIN, "--out", "FILE/run"], None, "is a file, not a directory"),
+    ("out in an unwritable place", [*TRAIN, "--out", "/proc/diffsim-run"], None, "--out /proc/diffsim-run"),
+    ("out holds a run", [*TRAIN, "--out", "RUN"], None, "already holds a run"),
+    ("bogus device", [*TRAIN, "--device", "bogus", "--out", "o"], None, "unknown device"),
+    ("cuda on a cpu machine", [*TRAIN, "--device", "cuda:0", "--out", "o"], "no_cuda", "no CUDA device"),
+    ("text seed", [*TRAIN, "--seed", "abc", "--out", "o"], None, "expected an integer"),
+    ("resume nothing", ["train", "--resume", "nowhere"], None, "not a run directory"),
+    (
+        "resume with other settings",
+        ["train", "--resume", "RUN", "--gamma", "0.5", "--algo", "sapo"],
+        None,
+        "drop --algo, --gamma",
+    ),
+    (
+        "resume to fewer epochs",
+        ["train", "--resume", "RUN", "--epochs", "1"],
+        "planned_2",
+        "fewer than the run's planned 2",
+    ),
+    ("resume a truncated config", ["train", "--resume", "RUN"], "truncate_config", "config.json is unreadable"),
+    ("resume a config without keys", ["train", "--resume", "RUN"], "empty_config_object", "config.json is unreadable"),
+    ("resume a garbage checkpoint", ["train", "--resume", "RUN"], "garbage_checkpoint", "checkpoint.pt is unreadable"),
+    ("resume an empty checkpoint", ["train", "--resume", "RUN"], "empty_checkpoint", "checkpoint.pt is unreadable"),
+    ("resume a corrupt metrics middle", ["train", "--resume", "RUN"], "corrupt_metrics_middle", "corrupt line 1"),
+    ("eval nothing", ["eval", "--run", "nowhere"], None, "not a run directory"),
+    ("eval without checkpoint", ["eval", "--run", "RUN"], "missing_checkpoint", "has no checkpoint.pt yet"),
+    ("eval a truncated config", ["eval", "--run", "RUN"], "truncate_config", "config.json is unreadable"),
+    ("eval zero seeds", ["eval", "--run", "RUN", "--eval-seeds", "0"], None, "positive integer"),
+    ("report nothing", ["report", "--runs", "nowhere", "--out", "r"], None, "not a run directory"),
+    ("report into a directory", ["report", "--runs", "RUN", "--out", "RUN"], None, "is a directory"),
+    ("gradcheck nan tolerance", ["gradcheck", *ANT, "--tolerance", "nan"], None, "positive finite"),
+    ("gradcheck negative tolerance", ["gradcheck", *ANT, "--tolerance", "-1"], None, "positive finite"),
+    ("throughput zero windows", ["throughput", *ANT, "--windows", "0"], None, "positive integer"),
+    ("throughput into a directory", ["throughput", *ANT, "--out", "RUN"], None, "is a directory"),
+    (
+        "grad-growth bogus constant",
+        ["grad-growth", "--run", "RUN", "--variant", "bogus=1"],
+        None,
+        "unknown physics constant",
+    ),
+    ("grad-growth text value", ["grad-growth", "--run", "RUN", "--variant", "contact_kf=abc"], None, "contact_kf"),
+    (
+        "crosscheck unknown backend",
+        ["crosscheck", "--task", "ant", "--backends", "newton", "bullet"],
+        None,
+        "unknown backend",
+    ),
+    (
+        "sweep with a bad algo",
+        ["sweep", *ANT, "--algos", "shac", "ppo", "--epochs", "1", "--out", "o"],
+        None,
+        "unknown algorithm",
+    ),
+]
+
+
+def _damage(run: Path, how: str | None, monkeypatch) -> None:
+    if how == "truncate_config":
+        _truncate(run / "config.json")
+    elif how == "empty_config_object":
+        (run / "config.json").write_text("{}")
+    elif how == "garbage_checkpoint":
+        (run / "checkpoint.pt").write_bytes(b"not a checkpoint at all")
+    elif how == "empty_checkpoint":
+        (run / "checkpoint.pt").write_bytes(b"")
+    elif how == "corrupt_metrics_middle":
+        text = (run / "metrics.jsonl").read_text()
+        (run / "metrics.jsonl").write_text("{torn\n" + text)
+    elif how == "missing_checkpoint":
+        (run / "checkpoint.pt").unlink()
+    elif how == "planned_2":
+        import json
+
+        config = json.loads((run / "config.json").read_text())
+        config["epochs"] = 2
+        (run / "config.json").write_text(json.dumps(config))
+    elif how == "no_cuda":
+        monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+
+
+@pytest.mark.parametrize("case, args, damage, needle", CLI_CASES, ids=[c[0] for c in CLI_CASES])
+def test_bad_cli_input(case, args, damage, needle, template, tmp_path, monkeypatch, capsys):
+    run = tmp_path / "run"
+    shutil.copytree(template, run)
+    (tmp_path / "file").write_text("not a directory")
+    _damage(run, damage, monkeypatch)
+    monkeypatch.chdir(tmp_path)
+    before = _snapshot(tmp_path)
+    args = [a.replace("RUN", str(run)).replace("FILE", str(tmp_path / "file")) for a in args]
+    assert main(args) == 2, case
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and "Traceback" not in err, err
+    assert needle in err, (needle, err)
+    assert _snapshot(tmp_path) == before, "a refused command wrote or changed a file"
+
+
+def test_the_corpus_is_at_least_forty_cases():
+    assert len(CLI_CASES) + len(API_CASES) >= 40
+
+
+def test_a_torn_last_metrics_line_is_dropped_by_resume_and_report(template, tmp_path, capsys):
+    run = tmp_path / "run"
+    shutil.copytree(template, run)
+    with (run / "metrics.jsonl").open("a") as fh:
+        fh.write('{"epoch": 1, "env_st')  # a kill in the middle of a row
+    assert main(["report", "--runs", str(run), "--out", str(tmp_path / "r"), "--no-plot"]) == 0
+    assert main(["train", "--resume", str(run), "--epochs", "2"]) == 0
+    rows = (run / "metrics.jsonl").read_text().splitlines()
+    assert len(rows) == 2 and all(row.startswith('{"epoch": ') for row in rows)
+
+
+def _sim(**kw):
+    return make("newton", make_task("ant"), **{"num_envs": 2, **kw})
+
+
+API_CASES = [
+    ("zero substeps", lambda: PhysicsSpec(substeps=0), ValueError, "substeps must be an integer >= 1"),
+    ("negative substeps", lambda: PhysicsSpec(substeps=-4), ValueError, "substeps"),
+    ("fractional substeps", lambda: PhysicsSpec(substeps=2.5), ValueError, "substeps"),
+    ("zero dt", lambda: PhysicsSpec(frame_dt=0.0), ValueError, "frame_dt must be a finite number > 0"),
+    ("negative dt", lambda: PhysicsSpec(frame_dt=-0.01), ValueError, "frame_dt"),
+    ("negative stiffness", lambda: PhysicsSpec(contact_ke=-1.0), ValueError, "contact_ke"),
+    ("non-integer num_envs", lambda: _sim(num_envs=2.5), ValueError, "num_envs must be an integer >= 1"),
+    ("zero num_envs", lambda: _sim(num_envs=0), ValueError, "num_envs"),
+    ("zero graph depth", lambda: _sim(max_graph_steps=0), ValueError, "max_graph_steps"),
+]
+
+
+def _state_cases(sim):
+    q, qd = sim.task.sample_initial_state(2, torch.Generator().manual_seed(0))
+    zero = q.clone()
+    zero[1, 3:7] = 0.0
+    return [
+        ("joint_q of the wrong width", lambda: sim.state_from_generalized(q[:, :5], qd), "joint_q must have shape"),
+        ("joint_qd of the wrong rows", lambda: sim.state_from_generalized(q, qd[:1]), "joint_qd must have shape"),
+        ("integer joint_q", lambda: sim.state_from_generalized(q.long(), qd), "floating-point"),
+        ("zero quaternion", lambda: sim.state_from_generalized(zero, qd), "zero length in env(s) [1]"),
+        ("state of the wrong rows", lambda: setattr(sim, "state", sim.state.map(lambda t: t[:1])), "rows for 2 envs"),
+    ]
+
+
+@pytest.mark.parametrize("case, build, exc, needle", API_CASES, ids=[c[0] for c in API_CASES])
+def test_bad_api_input_raises_a_typed_one_line_error(case, build, exc, needle):
+    with pytest.raises(exc) as info:
+        build()
+    assert needle in str(info.value) and "\n" not in str(info.value)
+
+
+def test_bad_states_and_actions_are_refused_before_the_engine():
+    sim = _sim()
+    for case, build, needle in _state_cases(sim):
+        with pytest.raises(InvalidStateError) as info:
+            build()
+        assert needle in str(info.value) and "\n" not in str(info.value), case
+    with pytest.raises(InvalidActionError):
+        sim.step(torch.full((2, 8), float("nan")))
+    with pytest.raises(InvalidActionError):
+        sim.step(torch.zeros(2, 8, dtype=torch.long))
