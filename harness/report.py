@@ -132,6 +132,14 @@ def write_report(runs: list[Path], out_prefix: str | Path, command: str, plot: b
         "",
         "Mean over training seeds (std; 95% CI of the mean, Student t):",
         "",
+    ]
+    if any(r["seeds"] < 2 for r in agg):
+        md += [
+            "**One training seed for some algorithms: no confidence interval, so this table is a record of what",
+            "ran, not a ranking.**",
+            "",
+        ]
+    md += [
         "| task | backend | algo | seeds | env steps | eval final | eval initial | train return, last 20 | "
         "median actor-grad var | final lambda | wall min |",
         "|---|---|---|---|---|---|---|---|---|---|---|",

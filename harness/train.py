@@ -118,7 +118,7 @@ def read_config(run_dir: Path) -> dict:
     """A run's config.json, or a one-line RunError saying why it cannot be used."""
     path = Path(run_dir) / CONFIG
     if not path.is_file():
-        raise RunError(f"{run_dir} is not a run directory (no {CONFIG})")
+        raise RunError(f"{run_dir} is not a run directory (no {CONFIG}); start a run there with train --out {run_dir}")
     try:
         config = json.loads(path.read_text())
         for key in ("task", "backend", "seed", "device", "epochs", "algo"):
