@@ -237,7 +237,8 @@ def test_unsupported_controls_and_particles_are_refused(sim, ant):
         make("mujoco_warp", PositionTargetAnt(), num_envs=1)
     q, qd = ant.default_state()
     with pytest.raises(BackendError, match="particles"):
-        sim.state_from_generalized(q[None], qd[None], particle_q=torch.zeros(1, 1, 3))
+        n = sim.num_envs
+        sim.state_from_generalized(q.repeat(n, 1), qd.repeat(n, 1), particle_q=torch.zeros(n, 1, 3))
 
 
 def test_bad_actions_are_refused_and_simulation_nan_is_reported_per_env(sim, ant):
