@@ -259,7 +259,19 @@ class FirstOrderActorCritic(nn.Module):
             )
         return k * torch.stack(grads)
 
-    # -- 3. lambda ---------------------------------------------------------------------------
+    # -- 3. temperature (SAPO) -------------------------------------------------------------
+    def update_alpha(self, w: Window) -> float:
+        """Mineral's temperature loss: alpha * |T| * (H - T), H the rollout's mean entropy estimate."""
+        target_entropy = self.cfg.target_entropy_per_dim * self.act_dim
+        entropy = w.entropies.mean()
+        loss = self.log_alpha.exp() * abs(target_entropy) * (entropy - target_entropy)  # alpha up when H < T
+        self.alpha_opt.zero_grad()
+        loss.backward()
+        nn.utils.clip_grad_norm_([self.log_alpha], self.cfg.alpha_grad_clip)
+        self.alpha_opt.step()
+        return float(entropy)
+
+    # -- 4. lambda (TDAdpt) ------------------------------------------------------------------
     def lambda_update_due(self, epoch: int) -> bool:
         m = self.cfg.lambda_iterations
         return self.cfg.adaptive_lambda and (m >= 1.0 or epoch % round(1.0 / m) == 0)
@@ -296,7 +308,7 @@ class FirstOrderActorCritic(nn.Module):
                 losses.append(float(loss.detach()))
         return sum(losses) / len(losses)
 
-    # -- 4. critic ---------------------------------------------------------------------------
+    # -- 5. critic ---------------------------------------------------------------------------
     def update_critic(self, w: Window) -> tuple[float, int]:
         cfg = self.cfg
         targets = critic_targets(
@@ -322,18 +334,6 @@ class FirstOrderActorCritic(nn.Module):
                 for target, online in zip(self.target_critics.parameters(), self.critics.parameters(), strict=True):
                     target.mul_(a).add_((1.0 - a) * online)
         return last, skipped
-
-    # -- 5. temperature ------------------------------------------------------------------------
-    def update_alpha(self, w: Window) -> float:
-        """Mineral's temperature loss: alpha * |T| * (H - T), H the rollout's mean entropy estimate."""
-        target_entropy = self.cfg.target_entropy_per_dim * self.act_dim
-        entropy = w.entropies.mean()
-        loss = self.log_alpha.exp() * abs(target_entropy) * (entropy - target_entropy)  # alpha up when H < T
-        self.alpha_opt.zero_grad()
-        loss.backward()
-        nn.utils.clip_grad_norm_([self.log_alpha], self.cfg.alpha_grad_clip)
-        self.alpha_opt.step()
-        return float(entropy)
 
     # -- one epoch ---------------------------------------------------------------------------
     def train_epoch(self, env) -> dict:
