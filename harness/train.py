@@ -52,6 +52,7 @@ CONFIG = "config.json"
 METRICS = "metrics.jsonl"
 CHECKPOINT = "checkpoint.pt"
 INIT_CHECKPOINT = "checkpoint_init.pt"
+# metrics that measure time, not the run: everything else is equal between a resumed and an uninterrupted run
 WALL_TIME_FIELDS = ("wall_s", "epoch_s", "sim_forward_s", "backward_s", "update_s")
 
 

@@ -17,13 +17,14 @@ import pytest
 import torch
 
 import backends
+from harness.train import WALL_TIME_FIELDS
 
 pytestmark = pytest.mark.skipif("pointmass" not in backends.available(), reason="the point-mass plug-in is absent")
 
 EPOCHS = 10
 TRAIN = ["--task", "pointmass", "--backend", "pointmass", "--algo", "shac-tdadpt", "--num-envs", "8"]
 TRAIN += ["--horizon", "8", "--critic-iterations", "1", "--seed", "4"]
-WALL = {"wall_s", "epoch_s", "sim_forward_s", "backward_s", "update_s"}
+WALL = set(WALL_TIME_FIELDS)
 
 
 def _env(delay: float = 0.0) -> dict:
