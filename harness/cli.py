@@ -436,6 +436,8 @@ def cmd_sweep(args) -> int:
     _validate_names(args.backend, args.task)
     _check_device(args.device)
     configs = {name: _algo_config(args, name) for name in args.algos}  # refuse bad input before any training
+    if not args.out.strip():
+        raise BadInput("--out is empty: name a directory for the sweep")
     if Path(args.out).exists() and not Path(args.out).is_dir():
         raise BadInput(f"--out {args.out} is an existing file, not a directory")
     runs = []
