@@ -144,6 +144,13 @@ CLI_CASES = [
         "unknown backend",
     ),
     (
+        "sweep into an empty path",
+        ["sweep", *ANT, "--algos", "shac", "--epochs", "1", "--out", ""],
+        None,
+        "--out is empty",
+    ),
+    ("sweep into a file", ["sweep", *ANT, "--algos", "shac", "--epochs", "1", "--out", "FILE"], None, "existing file"),
+    (
         "sweep with a bad algo",
         ["sweep", *ANT, "--algos", "shac", "ppo", "--epochs", "1", "--out", "o"],
         None,
