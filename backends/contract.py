@@ -23,7 +23,8 @@ What the base class provides once for every adapter:
 
 * :meth:`BatchedSim.advance` - the pure transition: validates actions, maps them to engine
   controls through the task, simulates, and reports non-finite results per env.
-* :meth:`BatchedSim.step` - ``advance`` from the current state, which it then replaces.
+* :meth:`BatchedSim.step` - ``advance`` from the current state, then :meth:`BatchedSim.commit`
+  (the new state becomes the current one).
 * :meth:`BatchedSim.reset` - fresh randomised initial states for some or all envs; the reset
   rows are detached, so the graph is cut for those envs only.
 * :meth:`BatchedSim.cut_graph` - detach all envs (window boundary) or only some.
@@ -252,7 +253,10 @@ class BatchedSim(ABC):
         On :class:`NonFiniteStateError` the internal state stays at the last finite state, so the
         caller can reset the named envs.
         """
-        next_state = self.advance(self._state, actions)
+        return self.commit(self.advance(self._state, actions))
+
+    def commit(self, next_state: SimState) -> SimState:
+        """Make ``next_state`` (one :meth:`advance` from the current state) the current state."""
         self.step_count += 1
         self._state = next_state
         return next_state

@@ -45,6 +45,7 @@ from harness.results import (
     provenance,
     read_metrics,
     slow_write_for_tests,
+    writable_parent,
     write_json,
 )
 
@@ -103,7 +104,10 @@ def _read_checkpoint(path: Path) -> dict:
 
 
 def load_checkpoint(path: Path, algo: FirstOrderActorCritic, env=None) -> dict:
-    payload = _read_checkpoint(path)
+    return _apply_checkpoint(_read_checkpoint(path), algo, env)
+
+
+def _apply_checkpoint(payload: dict, algo: FirstOrderActorCritic, env=None) -> dict:
     algo.load_state_dict(payload["algo"])
     for name, state in payload["optimizers"].items():
         getattr(algo, name).load_state_dict(state)
@@ -216,13 +220,13 @@ def check_output_dir(out: str | Path) -> Path:
         raise RunError(f"--out {out} is an existing file, not a directory")
     if (path / CONFIG).exists():
         raise RunError(f"{out} already holds a run; continue it with --resume {out} or choose another --out")
-    parent = path
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir():
-        raise RunError(f"--out {out}: {parent} is a file, not a directory")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise RunError(f"--out {out}: {parent} is not writable")
+    nearest = path
+    while not nearest.exists():
+        nearest = nearest.parent
+    if not nearest.is_dir():
+        raise RunError(f"--out {out}: {nearest} is a file, not a directory")
+    if writable_parent(path / CONFIG) is None:
+        raise RunError(f"--out {out}: {nearest} is not writable")
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -254,7 +258,7 @@ def train(
         "algo": algo_config.as_dict(),
         "provenance": provenance(command),
     }
-    return _run(run_dir, config, algo_config, checkpoint_every=checkpoint_every, stream=stream, fresh=True)
+    return _run(run_dir, config, algo_config, checkpoint_every=checkpoint_every, stream=stream)
 
 
 def resume(
@@ -270,24 +274,32 @@ def resume(
     algo_config = config.pop("algo_config")
     if epochs is not None and epochs < config["epochs"]:
         raise RunError(f"--epochs {epochs} is fewer than the run's planned {config['epochs']}; give a larger total")
-    _resume_source(run_dir)  # refuse an unreadable checkpoint or metrics file before anything is written
+    source = _resume_source(run_dir)  # refuse an unreadable checkpoint or metrics file before anything is written
     read_metrics(run_dir / METRICS)
     config["epochs"] = epochs or config["epochs"]
     config.setdefault("resumed", []).append(provenance(command))  # the original command stays
-    return _run(run_dir, config, algo_config, checkpoint_every=checkpoint_every, stream=stream, fresh=False)
+    return _run(run_dir, config, algo_config, checkpoint_every=checkpoint_every, stream=stream, source=source)
 
 
-def _resume_source(run_dir: Path) -> Path | None:
-    """The checkpoint a resume starts from: checkpoint.pt, else checkpoint_init.pt, else None (from scratch)."""
+def _resume_source(run_dir: Path) -> tuple[Path, dict] | None:
+    """The checkpoint a resume starts from and its contents: checkpoint.pt, else checkpoint_init.pt,
+    else None (from scratch)."""
     for name in (CHECKPOINT, INIT_CHECKPOINT):
         path = run_dir / name
         if path.exists():
-            _read_checkpoint(path)
-            return path
+            return path, _read_checkpoint(path)
     return None
 
 
-def _run(run_dir: Path, config: dict, algo_config: AlgoConfig, checkpoint_every: int, stream, fresh: bool) -> Path:
+def _run(
+    run_dir: Path,
+    config: dict,
+    algo_config: AlgoConfig,
+    checkpoint_every: int,
+    stream,
+    source: tuple[Path, dict] | None = None,
+) -> Path:
+    """Train from ``source`` (a resume's checkpoint path and contents), or from the start if None."""
     from tasks import make_task
 
     task, backend, seed, device, epochs = (config[k] for k in ("task", "backend", "seed", "device", "epochs"))
@@ -299,15 +311,15 @@ def _run(run_dir: Path, config: dict, algo_config: AlgoConfig, checkpoint_every:
     env = make_env(task, backend, algo_config.num_envs, device, seed, algo_config.horizon)
     algo = FirstOrderActorCritic(algo_config, env.obs_dim, env.action_dim)
     progress = {"env_steps": 0, "wall_s": 0.0, "recent_returns": [], "nonfinite_events": 0}
-    source = None if fresh else _resume_source(run_dir)
     if source is None:
         env.reset()
         save_checkpoint(run_dir / INIT_CHECKPOINT, algo, env, progress)
         _truncate_metrics(metrics_path, 0)
     else:
-        progress = load_checkpoint(source, algo, env)
+        path, payload = source
+        progress = _apply_checkpoint(payload, algo, env)
         _truncate_metrics(metrics_path, algo.epoch)
-        print(f"resuming {run_dir} at epoch {algo.epoch}/{epochs} from {source.name}", file=stream, flush=True)
+        print(f"resuming {run_dir} at epoch {algo.epoch}/{epochs} from {path.name}", file=stream, flush=True)
     bar = _Progress(epochs, algo.epoch, stream)
     from backends.contract import NonFiniteStateError
 

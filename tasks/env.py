@@ -85,8 +85,7 @@ class TaskEnv:
 
     def step(self, actions: torch.Tensor) -> StepResult:
         state, obs, reward = transition(self.sim, self.sim.state, actions)
-        self.sim.state = state
-        self.sim.step_count += 1
+        self.sim.commit(state)
         self.steps += 1
         self.returns += reward.detach()
         terminated = self.task.terminated(state, obs)
