@@ -102,7 +102,10 @@ FLAGS: dict[str, dict] = {
     "out": {"help": "output path (a directory for runs, a file or prefix for results)"},
     "run": {"help": "run directory written by `train`"},
     "runs": {"nargs": "+", "help": "run directories written by `train`"},
-    "windows": {"type": _positive_int, "help": "timed windows per variant (the best is kept)"},
+    "windows": {
+        "type": _positive_int,
+        "help": "windows of h steps: timed per variant (throughput, the best is kept) or replayed (grad-growth)",
+    },
     "eval_seeds": {"type": _positive_int, "default": 10, "help": "evaluation seeds (10000, 10001, ...)"},
     "max_steps": {"type": _positive_int, "help": "cap on steps per evaluation episode"},
     "checkpoint_every": {"type": _positive_int, "default": 1, "help": "epochs between checkpoints"},
@@ -115,6 +118,8 @@ VERB_DEFAULTS: dict[str, dict] = {
     "crosscheck": {"num_envs": 4},
     "throughput": {"num_envs": 64, "horizon": 32, "windows": 5},
     "sweep": {"num_envs": 64, "horizon": 32},
+    "grad-growth": {"windows": 3},
+    "solver-probe": {"num_envs": 64},
 }
 
 
@@ -203,8 +208,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("grad-growth", help="open-loop action-gradient norms along a run's policy trajectories")
     _add(p, "grad-growth", "run", required=("run",))
     p.add_argument("--variant", action="append", default=None, help="physics changes, e.g. contact_kf=300")
-    p.add_argument("--windows", type=_positive_int, default=3, help="windows replayed (default: %(default)s)")
-    _add(p, "grad-growth", "out")
+    _add(p, "grad-growth", "windows", "out")
 
     p = sub.add_parser("crosscheck", help="compare backends' gradients of the same loss, start and actions")
     _add(p, "crosscheck", "task", "backends", "num_envs", "steps", "seed", "out", required=("task", "backends"))
@@ -225,8 +229,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
 
     p = sub.add_parser("solver-probe", help="Newton solver/contact settings: forward stability and gradient size")
-    _add(p, "solver-probe", "out")
-    p.add_argument("--num-envs", type=_positive_int, default=64, help="Ants per probe (default: %(default)s)")
+    _add(p, "solver-probe", "num_envs", "out")
     return parser
 
 
@@ -240,11 +243,11 @@ def _command() -> str:
 def _validate_names(backend: str | None = None, task: str | None = None) -> None:
     import backends
     import tasks
+    from simcore import UnknownNameError  # the registries' own message, without loading an entry point
 
-    if backend is not None and backend not in backends.available():
-        raise BadInput(f"unknown backend {backend!r}; choose from: {', '.join(backends.available())}")
-    if task is not None and task not in tasks.available():
-        raise BadInput(f"unknown task {task!r}; choose from: {', '.join(tasks.available())}")
+    for kind, name, choices in (("backend", backend, backends.available()), ("task", task, tasks.available())):
+        if name is not None and name not in choices:
+            raise BadInput(str(UnknownNameError(kind, name, choices)))
 
 
 def _check_device(device: str) -> None:
@@ -273,19 +276,16 @@ def _make_sim(args, horizon: int):
 
 def _check_output_file(out: str) -> None:
     """A result file (or prefix) we may write: not empty, not a directory, in a writable place."""
-    import os
     from pathlib import Path
 
-    path = Path(out)
+    from harness.results import writable_parent
+
     if not out.strip():
         raise BadInput("--out is empty: name a file")
-    if path.is_dir():
+    if Path(out).is_dir():
         raise BadInput(f"--out {out} is a directory; name a file")
-    parent = path.parent
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
-        raise BadInput(f"--out {out}: {parent} is not a writable directory")
+    if writable_parent(Path(out)) is None:
+        raise BadInput(f"--out {out}: its nearest existing folder is not a writable directory")
 
 
 def _algo_config(args, name: str):

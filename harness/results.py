@@ -99,6 +99,14 @@ def provenance(command: str | None = None) -> dict:
     }
 
 
+def writable_parent(path: Path) -> Path | None:
+    """The nearest existing ancestor of ``path`` if it is a directory we may create entries in, else None."""
+    parent = Path(path).parent
+    while not parent.exists():
+        parent = parent.parent
+    return parent if parent.is_dir() and os.access(parent, os.W_OK | os.X_OK) else None
+
+
 def slow_write_for_tests() -> None:
     """Tests set DIFFSIM_BENCH_TEST_WRITE_DELAY (seconds) to hold every file write half-done for a while,
     so that a kill lands inside a write; unset (always, outside those tests) this does nothing."""
