@@ -22,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 import enum
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from importlib.metadata import entry_points
 from pathlib import Path
@@ -138,6 +139,7 @@ class PhysicsSpec:
     joint_limit_ke: float = 1.0e3
     joint_limit_kd: float = 1.0e1
     joint_damping: float = 1.0  # passive viscous damping on articulated dofs
+    armature: float | None = None  # rotor inertia reflected onto each articulated dof (kg m^2); None: the asset's
     pd_kp: float = 0.0  # JOINT_POSITION_TARGET: stiffness (N m / rad)
     pd_kd: float = 0.0  # JOINT_POSITION_TARGET: damping (N m s / rad)
     torque_limits: tuple[float, ...] = ()  # JOINT_POSITION_TARGET: |tau_j| <= limit_j (N m); () = none
@@ -157,6 +159,10 @@ class PhysicsSpec:
             value = getattr(self, name)
             if not (isinstance(value, int | float) and math.isfinite(value)):
                 raise ValueError(f"PhysicsSpec.{name} must be a finite number, got {value!r}")
+        if self.armature is not None and not (
+            isinstance(self.armature, int | float) and math.isfinite(self.armature) and self.armature >= 0
+        ):
+            raise ValueError(f"PhysicsSpec.armature must be None or a finite number >= 0, got {self.armature!r}")
         if any(not (math.isfinite(limit) and limit > 0) for limit in self.torque_limits):
             raise ValueError(f"PhysicsSpec.torque_limits must be positive and finite, got {self.torque_limits}")
 
@@ -185,6 +191,9 @@ class TaskSpec(Protocol):
     control_kind: ControlKind
     action_dim: int
     physics: PhysicsSpec
+    #: per-adapter settings the task was validated with, e.g. ``{"newton": {"solver": "featherstone"}}``;
+    #: an adapter reads its own entry, and options passed to it explicitly override them
+    backend_options: Mapping[str, Mapping[str, object]]
 
     def sample_initial_state(self, num_envs: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
         """Randomised generalized initial coordinates: ``joint_q`` (N, nq), ``joint_qd`` (N, nv)."""

@@ -124,7 +124,8 @@ class BatchedSim(ABC):
         self.device = torch.device(device)
         self.seed = int(seed)
         self.max_graph_steps = max_graph_steps
-        self.options = options
+        # the task's validated settings for this adapter first, explicit options on top
+        self.options = {**dict(getattr(task, "backend_options", {}).get(self.name, {})), **options}
         self.generator = torch.Generator(device="cpu").manual_seed(self.seed)
         self.step_count = 0
         supported = self.supported_control_kinds()

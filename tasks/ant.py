@@ -80,7 +80,9 @@ class Ant(Task):
             dim=-1,
         )
 
-    def reward(self, state: SimState, obs: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
+    def reward(
+        self, state: SimState, obs: torch.Tensor, actions: torch.Tensor, prev_actions: torch.Tensor
+    ) -> torch.Tensor:
         progress = obs[:, 5]
         up = 0.1 * obs[:, 27]
         heading = obs[:, 28]

@@ -30,6 +30,7 @@ class Task(ABC):
     action_dim: int
     obs_dim: int
     episode_length: int = 1000
+    backend_options: dict[str, dict[str, object]] = {}  # see simcore.TaskSpec.backend_options
 
     def __init__(self, physics: PhysicsSpec | None = None):
         self.physics = physics or PhysicsSpec()
@@ -47,8 +48,11 @@ class Task(ABC):
         """Observation (N, obs_dim)."""
 
     @abstractmethod
-    def reward(self, state: SimState, obs: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
-        """Reward (N,) for the transition that produced ``state``."""
+    def reward(
+        self, state: SimState, obs: torch.Tensor, actions: torch.Tensor, prev_actions: torch.Tensor
+    ) -> torch.Tensor:
+        """Reward (N,) for the transition that produced ``state`` under ``actions``; ``prev_actions``
+        are those of the step before (zeros after a reset), for action-rate terms."""
 
     @abstractmethod
     def terminated(self, state: SimState, obs: torch.Tensor) -> torch.Tensor:

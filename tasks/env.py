@@ -84,7 +84,7 @@ class TaskEnv:
         return self.obs
 
     def step(self, actions: torch.Tensor) -> StepResult:
-        state, obs, reward = transition(self.sim, self.sim.state, actions)
+        state, obs, reward = transition(self.sim, self.sim.state, actions, self.prev_actions)
         self.sim.commit(state)
         self.steps += 1
         self.returns += reward.detach()

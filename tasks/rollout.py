@@ -17,22 +17,30 @@ import torch
 from simcore import SimState
 
 
-def transition(sim, state: SimState, actions: torch.Tensor) -> tuple[SimState, torch.Tensor, torch.Tensor]:
-    """(next state, observation, reward) of one control step from ``state`` under ``actions`` (N, A)."""
+def transition(
+    sim, state: SimState, actions: torch.Tensor, prev_actions: torch.Tensor
+) -> tuple[SimState, torch.Tensor, torch.Tensor]:
+    """(next state, observation, reward) of one control step from ``state`` under ``actions`` (N, A);
+    ``prev_actions`` are the actions of the step before (zeros after a reset)."""
     task = sim.task
     next_state = sim.advance(state, actions)
     obs = task.observe(next_state, actions)
-    return next_state, obs, task.reward(next_state, obs, actions)
+    return next_state, obs, task.reward(next_state, obs, actions, prev_actions)
 
 
-def rollout_reward(sim, state: SimState, actions: torch.Tensor) -> torch.Tensor:
+def rollout_reward(
+    sim, state: SimState, actions: torch.Tensor, prev_actions: torch.Tensor | None = None
+) -> torch.Tensor:
     """Per-env sum (N,) float64 of the task's rewards over ``actions`` (T, N, A) from ``state``.
 
+    ``prev_actions`` (N, A): the actions before the first step (default zeros, as after a reset).
     No episode bookkeeping: termination and resets are the env's business, so callers choose
     segments short enough (or states far enough from termination) for the sum to be one episode's.
     """
     total = torch.zeros(actions.shape[1], dtype=torch.float64, device=actions.device)
+    prev = torch.zeros_like(actions[0]) if prev_actions is None else prev_actions
     for t in range(actions.shape[0]):
-        state, _, reward = transition(sim, state, actions[t])
+        state, _, reward = transition(sim, state, actions[t], prev)
         total = total + reward.double()
+        prev = actions[t]
     return total

@@ -37,7 +37,7 @@ def test_observation_layout_and_reward(ant):
     assert torch.allclose(obs[:, 29:], prev)
     # forward velocity + 0.1 * up + heading + (height - 0.27)
     expected = qd[:, 0] + 0.1 + 1.0 + (0.75 - 0.27)
-    assert torch.allclose(ant.reward(_state(q, qd), obs, prev), expected)
+    assert torch.allclose(ant.reward(_state(q, qd), obs, prev, torch.zeros_like(prev)), expected)
 
 
 def test_heading_and_up_follow_the_torso_rotation(ant):

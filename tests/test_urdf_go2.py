@@ -41,7 +41,7 @@ def go2_torque_task(urdf):
         def observe(self, state: SimState, prev_actions):
             return torch.cat((state.joint_q, state.joint_qd), dim=-1)
 
-        def reward(self, state, obs, actions):
+        def reward(self, state, obs, actions, prev_actions):
             return state.root_lin_vel[:, 0] + 0.1 * state.dof_q(self.layout).sum(-1)
 
         def terminated(self, state, obs):

@@ -33,7 +33,7 @@ import warp as wp
 
 from backends._warp import warp_device
 from backends.contract import BackendError, BatchedSim
-from simcore import SimState, StateLayout
+from simcore import ControlKind, SimState, StateLayout
 
 _POSE = 7  # wp.transform: position (3) + quaternion xyzw (4)
 _TWIST = 6  # wp.spatial_vector: COM linear velocity (3) + angular velocity (3), world frame
@@ -45,30 +45,59 @@ class _Frame:
     def __init__(self, sim: NewtonSim, num_states: int):
         model = sim.model
         self.states = [model.state(requires_grad=True) for _ in range(num_states)]
-        self.control = model.control(requires_grad=True)
+        self.control = model.control(requires_grad=True)  # JOINT_TORQUE: one joint_f for the whole step
         self.contacts = sim.pipeline.contacts()
         self.joint_q = wp.zeros(model.joint_coord_count, dtype=float, device=model.device, requires_grad=True)
         self.joint_qd = wp.zeros(model.joint_dof_count, dtype=float, device=model.device, requires_grad=True)
+        self.pd = None
+        if sim.position_control:
+            # JOINT_POSITION_TARGET: the targets, and one joint_f per substep (the PD torque depends on the
+            # substep's state; a shared buffer would be overwritten before the tape replays it)
+            n, j = sim.num_envs, sim.layout.num_dofs
+            self.target = wp.zeros(n * j, dtype=float, device=model.device, requires_grad=True)
+            self.pd = [model.control(requires_grad=True) for _ in range(sim.task.physics.substeps)]
+            if not sim.featherstone:  # maximal coordinates: joint coordinates come from eval_ik per substep
+                self.pd_q = [wp.zeros_like(self.joint_q) for _ in range(sim.task.physics.substeps)]
+                self.pd_qd = [wp.zeros_like(self.joint_qd) for _ in range(sim.task.physics.substeps)]
+        # Featherstone keeps its mass matrix, Jacobian and Cholesky factor in solver-owned buffers that
+        # every step overwrites; a frame owns one set per mass-matrix update so its tape replays them
+        self.matrices = [sim.new_matrix_buffers() for _ in range(sim.matrix_updates)] if sim.featherstone else []
         self.tape: wp.Tape | None = None
         self.generation = 0
 
+    def substep_control(self, s: int) -> newton.Control:
+        return self.control if self.pd is None else self.pd[s]
+
 
 class NewtonSim(BatchedSim):
-    """A task on Newton's semi-implicit solver; see the module docstring.
+    """A task on Newton; see the module docstring.
 
-    ``max_graph_steps`` (a contract argument) frames stay replayable. Options: ``contact_gap``
-    (default 0.05 m) contact-candidate distance; ``angular_damping`` (default 0.05),
+    ``max_graph_steps`` (a contract argument) frames stay replayable. Options: ``solver``
+    (``"semi_implicit"``, the default, or ``"featherstone"``); ``contact_gap`` (default 0.05 m)
+    contact-candidate distance; for the semi-implicit solver ``angular_damping`` (default 0.05),
     ``joint_attach_ke`` (1e4) and ``joint_attach_kd`` (1e2): the solver's own defaults, exposed for
-    experiments. Control kinds: joint torques (``JOINT_POSITION_TARGET`` comes with the Go2 task).
+    experiments. Control kinds: joint torques, and joint position targets through the PD law of the
+    task's physics spec, evaluated by :func:`_pd_torque` at every substep inside the tape.
+
+    Engine state per env: ``[body_q, body_qd]`` of every body (maximal coordinates) for the
+    semi-implicit solver; ``[joint_q, joint_qd]`` (generalized coordinates, the neutral layout
+    itself) for Featherstone, whose state they are.
     """
 
     name = "newton"
+    SOLVERS = ("semi_implicit", "featherstone")
 
     # -- construction ---------------------------------------------------------------------
     def _build(self) -> None:
         task = self.task
         phys = task.physics
         contact_gap = float(self.options.get("contact_gap", 0.05))
+        solver = self.options.get("solver", "semi_implicit")
+        if solver not in self.SOLVERS:
+            raise BackendError(f"newton solver must be one of {', '.join(self.SOLVERS)}, got {solver!r}")
+        self.solver_name = solver
+        self.featherstone = solver == "featherstone"
+        self.position_control = task.control_kind == ControlKind.JOINT_POSITION_TARGET
         self.wp_device = warp_device(self.device)
 
         shape_cfg = newton.ModelBuilder.ShapeConfig(
@@ -93,16 +122,36 @@ class NewtonSim(BatchedSim):
         model = builder.finalize(device=self.wp_device, requires_grad=True)
         self._apply_physics(model)
         self.model = model
-        self.solver = newton.solvers.SolverSemiImplicit(
-            model,
-            angular_damping=float(self.options.get("angular_damping", 0.05)),
-            joint_attach_ke=float(self.options.get("joint_attach_ke", 1.0e4)),
-            joint_attach_kd=float(self.options.get("joint_attach_kd", 1.0e2)),
-        )
+        if self.featherstone:
+            self.mass_matrix_every = int(self.options.get("mass_matrix_every", phys.substeps))
+            if self.mass_matrix_every < 1 or phys.substeps % self.mass_matrix_every:
+                raise BackendError(
+                    f"mass_matrix_every={self.mass_matrix_every} must be a divisor of the {phys.substeps} substeps"
+                )
+            self.matrix_updates = phys.substeps // self.mass_matrix_every
+            self.solver = newton.solvers.SolverFeatherstone(model, update_mass_matrix_interval=self.mass_matrix_every)
+        else:
+            self.solver = newton.solvers.SolverSemiImplicit(
+                model,
+                angular_damping=float(self.options.get("angular_damping", 0.05)),
+                joint_attach_ke=float(self.options.get("joint_attach_ke", 1.0e4)),
+                joint_attach_kd=float(self.options.get("joint_attach_kd", 1.0e2)),
+            )
         self.pipeline = newton.CollisionPipeline(model, requires_grad=True)
+        if self.position_control:
+            limits = phys.torque_limits or (float("inf"),) * task.layout.num_dofs
+            if len(limits) != task.layout.num_dofs:
+                raise BackendError(f"{len(limits)} torque limits for {task.layout.num_dofs} joints of {task.name!r}")
+            self._pd_limits = wp.array(np.asarray(limits, dtype=np.float32), dtype=float, device=self.wp_device)
         self._frames: list[_Frame] = []
         self._cursor = 0
         self._scratch = _Frame(self, 2)
+
+    _MATRICES = ("M", "J", "P", "H", "L")
+
+    def new_matrix_buffers(self) -> dict[str, wp.array]:
+        """Fresh arrays shaped like the Featherstone solver's system matrices."""
+        return {name: wp.zeros_like(getattr(self.solver, name), requires_grad=True) for name in self._MATRICES}
 
     def _load_asset(self, builder: newton.ModelBuilder) -> None:
         path = str(self.task.asset_path)
@@ -113,9 +162,10 @@ class NewtonSim(BatchedSim):
             elif fmt == "urdf":
                 builder.add_urdf(
                     path,
-                    floating=self.task.layout.floating_base,
+                    floating=self.task.layout.floating_base,  # the trunk's free joint (MuJoCo's adapter adds the same)
                     enable_self_collisions=False,
                     collapse_fixed_joints=True,  # rotor and foot links: fixed, tiny, stiff as penalty joints
+                    parse_visuals_as_colliders=False,
                 )
             else:
                 raise BackendError(f"the newton adapter cannot load {fmt!r} assets yet")
@@ -138,7 +188,10 @@ class NewtonSim(BatchedSim):
         model.joint_limit_ke.assign(per_dof(phys.joint_limit_ke))
         model.joint_limit_kd.assign(per_dof(phys.joint_limit_kd))
         model.joint_damping.assign(per_dof(phys.joint_damping))
-        # torque control: no PD drive (the importer may have set gains from the MJCF's actuators)
+        if phys.armature is not None:
+            model.joint_armature.assign(per_dof(phys.armature))
+        # no built-in drive: torques come from the control (position targets through our own PD kernel,
+        # which clips to the torque limits as the task's law says; Newton's drive would not)
         model.joint_target_ke.assign(per_dof(0.0))
         model.joint_target_kd.assign(per_dof(0.0))
 
@@ -148,43 +201,102 @@ class NewtonSim(BatchedSim):
 
     # -- torch <-> warp -------------------------------------------------------------------
     def _split_engine(self, engine: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The engine rows as the two flat Warp-shaped arrays of the solver's state."""
+        if self.featherstone:
+            nq = self.layout.nq
+            return engine[:, :nq].reshape(-1).contiguous(), engine[:, nq:].reshape(-1).contiguous()
         n_pose = self.bodies_per_env * _POSE
         body_q = engine[:, :n_pose].reshape(-1, _POSE).contiguous()
         body_qd = engine[:, n_pose:].reshape(-1, _TWIST).contiguous()
         return body_q, body_qd
 
-    def _join_engine(self, body_q: wp.array, body_qd: wp.array) -> torch.Tensor:
-        n = self.num_envs
-        return torch.cat((wp.to_torch(body_q).reshape(n, -1), wp.to_torch(body_qd).reshape(n, -1)), dim=1)
+    def _state_arrays(self, state: newton.State) -> tuple[wp.array, wp.array]:
+        """The solver state's own variables: generalized for Featherstone, maximal otherwise."""
+        if self.featherstone:
+            return state.joint_q, state.joint_qd
+        return state.body_q, state.body_qd
 
-    def _load_frame_inputs(self, frame: _Frame, engine: torch.Tensor, joint_f: torch.Tensor) -> None:
-        body_q, body_qd = self._split_engine(engine.detach().float())
-        first = frame.states[0]
-        wp.copy(first.body_q, wp.from_torch(body_q, dtype=wp.transform))
-        wp.copy(first.body_qd, wp.from_torch(body_qd, dtype=wp.spatial_vector))
-        wp.copy(frame.control.joint_f, wp.from_torch(joint_f.detach().float().reshape(-1).contiguous()))
+    def _to_warp(self, engine: torch.Tensor) -> tuple[wp.array, wp.array]:
+        a, b = self._split_engine(engine)
+        if self.featherstone:
+            return wp.from_torch(a), wp.from_torch(b)
+        return wp.from_torch(a, dtype=wp.transform), wp.from_torch(b, dtype=wp.spatial_vector)
+
+    def _join_engine(self, a: wp.array, b: wp.array) -> torch.Tensor:
+        n = self.num_envs
+        return torch.cat((wp.to_torch(a).reshape(n, -1), wp.to_torch(b).reshape(n, -1)), dim=1)
+
+    def _load_state(self, state: newton.State, engine: torch.Tensor) -> None:
+        for dst, src in zip(self._state_arrays(state), self._to_warp(engine.detach().float()), strict=True):
+            wp.copy(dst, src)
+        if self.featherstone:  # body poses for the collision pipeline (the solver recomputes them on the tape)
+            newton.eval_fk(self.model, state.joint_q, state.joint_qd, state)
+
+    def _load_frame_inputs(self, frame: _Frame, engine: torch.Tensor, control: torch.Tensor) -> None:
+        self._load_state(frame.states[0], engine)
+        flat = wp.from_torch(control.detach().float().reshape(-1).contiguous())
+        wp.copy(frame.target if self.position_control else frame.control.joint_f, flat)
 
     def _outputs(self, frame: _Frame, last: newton.State) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        engine = self._join_engine(*self._state_arrays(last)).clone()
+        if self.featherstone:
+            nq = self.layout.nq
+            return engine, engine[:, :nq].clone(), engine[:, nq:].clone()
         n = self.num_envs
-        engine = self._join_engine(last.body_q, last.body_qd).clone()
         joint_q = wp.to_torch(frame.joint_q).reshape(n, -1).clone()
         joint_qd = wp.to_torch(frame.joint_qd).reshape(n, -1).clone()
         return engine, joint_q, joint_qd
 
     # -- simulation -----------------------------------------------------------------------
-    def _substep(self, state_in: newton.State, state_out: newton.State, frame: _Frame) -> None:
+    def _substep(self, state_in: newton.State, state_out: newton.State, frame: _Frame, s: int) -> None:
         state_in.clear_forces()
-        self.solver.step(state_in, state_out, frame.control, frame.contacts, self.task.physics.sim_dt)
+        if self.featherstone:
+            # the solver rebuilds its matrices when its step counter is a multiple of mass_matrix_every:
+            # point it at this frame's buffers for that update and the substeps that use it
+            self.solver._step = s
+            for name, array in frame.matrices[s // self.mass_matrix_every].items():
+                setattr(self.solver, name, array)
+        control = frame.substep_control(s)
+        if self.position_control:
+            self._pd(state_in, frame, s, control)
+        self.solver.step(state_in, state_out, control, frame.contacts, self.task.physics.sim_dt)
 
-    def _forward_no_grad(self, engine: torch.Tensor, joint_f: torch.Tensor):
+    def _pd(self, state: newton.State, frame: _Frame, s: int, control: newton.Control) -> None:
+        """PhysicsSpec.pd_torque from the substep's joint coordinates into the substep's joint_f."""
+        if self.featherstone:
+            q, qd = state.joint_q, state.joint_qd
+        else:
+            q, qd = frame.pd_q[s], frame.pd_qd[s]
+            newton.eval_ik(self.model, state, q, qd)
+        layout, phys = self.layout, self.task.physics
+        wp.launch(
+            _pd_torque,
+            dim=(self.num_envs, layout.num_dofs),
+            inputs=[
+                frame.target,
+                q,
+                qd,
+                self._pd_limits,
+                phys.pd_kp,
+                phys.pd_kd,
+                layout.nq,
+                layout.nv,
+                layout.num_dofs,
+            ],
+            outputs=[control.joint_f],
+            device=self.model.device,
+        )
+
+    def _forward_no_grad(self, engine: torch.Tensor, control: torch.Tensor):
         frame = self._scratch
-        self._load_frame_inputs(frame, engine, joint_f)
+        self._load_frame_inputs(frame, engine, control)
         a, b = frame.states
         self.pipeline.collide(a, frame.contacts)
-        for _ in range(self.task.physics.substeps):
-            self._substep(a, b, frame)
+        for s in range(self.task.physics.substeps):
+            self._substep(a, b, frame, s)
             a, b = b, a
-        newton.eval_ik(self.model, a, frame.joint_q, frame.joint_qd)
+        if not self.featherstone:
+            newton.eval_ik(self.model, a, frame.joint_q, frame.joint_qd)
         return self._outputs(frame, a)
 
     def _next_frame(self) -> _Frame:
@@ -197,16 +309,17 @@ class NewtonSim(BatchedSim):
         frame.generation += 1
         return frame
 
-    def _forward_taped(self, engine: torch.Tensor, joint_f: torch.Tensor) -> _Frame:
+    def _forward_taped(self, engine: torch.Tensor, control: torch.Tensor) -> _Frame:
         frame = self._next_frame()
-        self._load_frame_inputs(frame, engine, joint_f)
+        self._load_frame_inputs(frame, engine, control)
         states = frame.states
         self.pipeline.collide(states[0], frame.contacts)  # discrete: outside the tape
         tape = wp.Tape()
         with tape:
             for s in range(self.task.physics.substeps):
-                self._substep(states[s], states[s + 1], frame)
-            newton.eval_ik(self.model, states[-1], frame.joint_q, frame.joint_qd)
+                self._substep(states[s], states[s + 1], frame, s)
+            if not self.featherstone:
+                newton.eval_ik(self.model, states[-1], frame.joint_q, frame.joint_qd)
         frame.tape = tape
         return frame
 
@@ -217,28 +330,35 @@ class NewtonSim(BatchedSim):
                 "buffers were reused; call cut_graph() at window boundaries or raise max_graph_steps"
             )
         last = frame.states[-1]
+        out_a, out_b = self._state_arrays(last)
+        if self.featherstone:  # joint_q / joint_qd are views of the engine rows: one gradient
+            nq = self.layout.nq
+            total = torch.zeros(self.num_envs, self.layout.nq + self.layout.nv, dtype=torch.float32)
+            for grad, cols in ((grad_engine, slice(None)), (grad_q, slice(0, nq)), (grad_qd, slice(nq, None))):
+                if grad is not None:
+                    total[:, cols] += grad.float()
+            grad_engine, grad_q, grad_qd = total, None, None
         grads = {}
         if grad_engine is not None:
-            g_q, g_qd = self._split_engine(grad_engine.float())
-            grads[last.body_q] = wp.from_torch(g_q, dtype=wp.transform)
-            grads[last.body_qd] = wp.from_torch(g_qd, dtype=wp.spatial_vector)
+            for array, g in zip((out_a, out_b), self._to_warp(grad_engine.float()), strict=True):
+                grads[array] = g
         if grad_q is not None:
             grads[frame.joint_q] = wp.from_torch(grad_q.float().reshape(-1).contiguous())
         if grad_qd is not None:
             grads[frame.joint_qd] = wp.from_torch(grad_qd.float().reshape(-1).contiguous())
         frame.tape.backward(grads=grads)
-        first = frame.states[0]
-        grad_engine_in = self._join_engine(first.body_q.grad, first.body_qd.grad).clone()
-        grad_joint_f = wp.to_torch(frame.control.joint_f.grad).reshape(self.num_envs, -1).clone()
+        grad_engine_in = self._join_engine(*(a.grad for a in self._state_arrays(frame.states[0]))).clone()
+        control_grad = frame.target.grad if self.position_control else frame.control.joint_f.grad
+        grad_control = wp.to_torch(control_grad).reshape(self.num_envs, -1).clone()
         frame.tape.zero()
-        return grad_engine_in, grad_joint_f
+        return grad_engine_in, grad_control
 
     def simulate(self, state: SimState, control: torch.Tensor) -> SimState:
-        joint_f = self.engine_control(control)
-        if torch.is_grad_enabled() and (state.engine.requires_grad or joint_f.requires_grad):
-            engine, joint_q, joint_qd = _NewtonStep.apply(self, state.engine, joint_f)
+        control = self.engine_control(control)
+        if torch.is_grad_enabled() and (state.engine.requires_grad or control.requires_grad):
+            engine, joint_q, joint_qd = _NewtonStep.apply(self, state.engine, control)
         else:
-            engine, joint_q, joint_qd = self._forward_no_grad(state.engine, joint_f)
+            engine, joint_q, joint_qd = self._forward_no_grad(state.engine, control)
         return SimState(joint_q=joint_q, joint_qd=joint_qd, engine=engine)
 
     def _control_joint_torque(self, control: torch.Tensor) -> torch.Tensor:
@@ -246,16 +366,28 @@ class NewtonSim(BatchedSim):
         root = self.layout.nv - self.layout.num_dofs
         return torch.nn.functional.pad(control, (root, 0))
 
+    def _control_joint_position_target(self, control: torch.Tensor) -> torch.Tensor:
+        """JOINT_POSITION_TARGET: the (N, J) targets; the PD law runs per substep in :meth:`_pd`."""
+        expected = (self.num_envs, self.layout.num_dofs)
+        if tuple(control.shape) != expected:
+            raise BackendError(f"position targets must have shape {expected}, got {tuple(control.shape)}")
+        return control
+
     def bare_engine_rollout(self, horizon: int) -> float:
         """Seconds per forward+backward window on raw Newton/Warp (see :func:`bare_tape_rollout`)."""
         return bare_tape_rollout(self, horizon)
 
-    # -- generalized -> maximal coordinates -----------------------------------------------
+    # -- generalized -> engine coordinates ------------------------------------------------
     def state_from_generalized(self, joint_q, joint_qd, particle_q=None, particle_qd=None) -> SimState:
         if particle_q is not None or particle_qd is not None:
             raise BackendError("particles are not supported by the newton adapter yet")
         joint_q = joint_q.to(self.device, torch.float32)
         joint_qd = joint_qd.to(self.device, torch.float32)
+        if self.featherstone:  # generalized coordinates are the engine state (quaternion normalised, as FK does)
+            joint_q = torch.cat(
+                (joint_q[:, :3], torch.nn.functional.normalize(joint_q[:, 3:7], dim=1), joint_q[:, 7:]), 1
+            )
+            return SimState(joint_q=joint_q, joint_qd=joint_qd, engine=torch.cat((joint_q, joint_qd), dim=1))
         engine = _NewtonFK.apply(self, joint_q, joint_qd)
         return SimState(joint_q=joint_q, joint_qd=joint_qd, engine=engine)
 
@@ -271,6 +403,27 @@ class NewtonSim(BatchedSim):
         else:
             newton.eval_fk(model, q, qd, out)
         return self._join_engine(out.body_q, out.body_qd).clone(), (tape, q, qd, out)
+
+
+@wp.kernel
+def _pd_torque(
+    target: wp.array[float],
+    joint_q: wp.array[float],
+    joint_qd: wp.array[float],
+    limit: wp.array[float],
+    kp: float,
+    kd: float,
+    nq: int,
+    nv: int,
+    num_dofs: int,
+    joint_f: wp.array[float],
+):
+    """tau = clip(kp (q* - q) - kd qd, -limit, limit) on the articulated dofs (PhysicsSpec.pd_torque)."""
+    env, j = wp.tid()
+    q = joint_q[env * nq + nq - num_dofs + j]
+    qd = joint_qd[env * nv + nv - num_dofs + j]
+    tau = kp * (target[env * num_dofs + j] - q) - kd * qd
+    joint_f[env * nv + nv - num_dofs + j] = wp.clamp(tau, -limit[j], limit[j])
 
 
 class _NewtonStep(torch.autograd.Function):
@@ -320,24 +473,29 @@ def bare_tape_rollout(sim: NewtonSim, horizon: int, repeats: int = 1, seed: int 
 
     The reference for the adapter's overhead: the same model, solver, contact pipeline, substeps
     and fresh state buffers per substep, one tape over the whole window, a loss on the final
-    body positions, ``tape.backward`` and ``tape.zero``. Returns the best of ``repeats``.
+    body positions, ``tape.backward`` and ``tape.zero``. Position-target tasks run the same PD
+    kernel per substep as the adapter. Returns the best of ``repeats``.
     """
     import time
 
-    model, phys = sim.model, sim.task.physics
+    model, phys, layout = sim.model, sim.task.physics, sim.layout
     subs = phys.substeps
     states = [model.state(requires_grad=True) for _ in range(horizon * subs + 1)]
-    controls = [model.control(requires_grad=True) for _ in range(horizon)]
+    controls = [model.control(requires_grad=True) for _ in range(horizon * subs if sim.position_control else horizon)]
     contacts = [sim.pipeline.contacts() for _ in range(horizon)]
     loss = wp.zeros(1, dtype=float, device=model.device, requires_grad=True)
-    body_q, body_qd = sim._split_engine(sim.state.engine.detach())
-    wp.copy(states[0].body_q, wp.from_torch(body_q, dtype=wp.transform))
-    wp.copy(states[0].body_qd, wp.from_torch(body_qd, dtype=wp.spatial_vector))
+    sim._load_state(states[0], sim.state.engine)
     rng = np.random.default_rng(seed)
-    for c in controls:
-        f = np.zeros((sim.num_envs, sim.layout.nv), dtype=np.float32)
-        f[:, sim.layout.nv - sim.layout.num_dofs :] = rng.uniform(-100.0, 100.0, (sim.num_envs, sim.layout.num_dofs))
-        c.joint_f.assign(f.ravel())
+    targets = []
+    for t in range(horizon):
+        if sim.position_control:  # targets within a quarter radian of the current pose
+            q = sim.state.dof_q(layout).detach().cpu().numpy()
+            values = (q + rng.uniform(-0.25, 0.25, q.shape)).astype(np.float32).ravel()
+            targets.append(wp.array(values, dtype=float, device=model.device, requires_grad=True))
+        else:
+            f = np.zeros((sim.num_envs, layout.nv), dtype=np.float32)
+            f[:, layout.nv - layout.num_dofs :] = rng.uniform(-100.0, 100.0, (sim.num_envs, layout.num_dofs))
+            controls[t].joint_f.assign(f.ravel())
 
     best = float("inf")
     for _ in range(repeats + 1):  # the first pass warms caches and is not counted
@@ -348,7 +506,20 @@ def bare_tape_rollout(sim: NewtonSim, horizon: int, repeats: int = 1, seed: int 
             with tape:
                 for s in range(t * subs, (t + 1) * subs):
                     states[s].clear_forces()
-                    sim.solver.step(states[s], states[s + 1], controls[t], contacts[t], phys.sim_dt)
+                    control = controls[s] if sim.position_control else controls[t]
+                    if sim.position_control:
+                        pd_q, pd_qd = states[s].joint_q, states[s].joint_qd
+                        if not sim.featherstone:
+                            newton.eval_ik(model, states[s], pd_q, pd_qd)
+                        wp.launch(
+                            _pd_torque,
+                            dim=(sim.num_envs, layout.num_dofs),
+                            inputs=[targets[t], pd_q, pd_qd, sim._pd_limits, phys.pd_kp, phys.pd_kd]
+                            + [layout.nq, layout.nv, layout.num_dofs],
+                            outputs=[control.joint_f],
+                            device=model.device,
+                        )
+                    sim.solver.step(states[s], states[s + 1], control, contacts[t], phys.sim_dt)
         with tape:
             wp.launch(_sum_positions, dim=model.body_count, inputs=[states[-1].body_q], outputs=[loss])
         tape.backward(loss)

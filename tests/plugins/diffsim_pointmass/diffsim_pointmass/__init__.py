@@ -43,7 +43,7 @@ class PointMassTask(Task):
     def observe(self, state: SimState, prev_actions):
         return torch.cat((state.joint_q, state.joint_qd, prev_actions), dim=-1)
 
-    def reward(self, state, obs, actions):
+    def reward(self, state, obs, actions, prev_actions):
         return -state.joint_q.pow(2).sum(-1) - 0.01 * actions.pow(2).sum(-1)
 
     def terminated(self, state, obs):
