@@ -75,8 +75,8 @@ class BatchedSim(ABC):
 
     #: registry name of the adapter, set by subclasses
     name: str = ""
-    #: the task the contract test suite (tests/test_contract.py) runs this adapter on
-    contract_task: str = "ant"
+    #: the tasks the contract test suite (tests/test_contract.py) runs this adapter on
+    contract_tasks: tuple[str, ...] = ("ant",)
 
     def __init_subclass__(cls, **kwargs):
         """Every adapter's ``state_from_generalized`` checks its input first (:meth:`check_generalized`)."""
@@ -137,13 +137,30 @@ class BatchedSim(ABC):
         self._build()
         self._state: SimState = self._initial_state()
 
+    def check_torque_limits(self) -> None:
+        """JOINT_POSITION_TARGET tasks: one torque limit per actuated joint, or none."""
+        limits = self.task.physics.torque_limits
+        if limits and len(limits) != self.layout.num_dofs:
+            raise BackendError(
+                f"{len(limits)} torque limits for {self.layout.num_dofs} joints of task {self.task.name!r}"
+            )
+
     @classmethod
     def supported_control_kinds(cls) -> list[ControlKind]:
         """The kinds this adapter has a ``_control_<kind>`` method for."""
         return [kind for kind in ControlKind if callable(getattr(cls, f"_control_{kind.value}", None))]
 
     def engine_control(self, control: torch.Tensor) -> torch.Tensor:
-        """The task's control tensor through this adapter's method for the task's control kind."""
+        """The task's control tensor through this adapter's method for the task's control kind.
+
+        Non-finite controls (a task's mapping gone wrong, or a direct ``simulate`` call) are refused
+        here, before any engine sees them."""
+        bad = ~torch.isfinite(control.detach()).reshape(control.shape[0], -1).all(dim=1)
+        if bool(bad.any()):
+            ids = bad.nonzero().flatten().tolist()
+            raise InvalidActionError(
+                f"{self.task.control_kind.value} control contains NaN or inf for env(s) {ids[:16]}"
+            )
         return getattr(self, f"_control_{self.task.control_kind.value}")(control)
 
     def bare_engine_rollout(self, horizon: int) -> float | None:

@@ -119,7 +119,7 @@ VERB_DEFAULTS: dict[str, dict] = {
     "throughput": {"num_envs": 64, "horizon": 32, "windows": 5},
     "sweep": {"num_envs": 64, "horizon": 32},
     "grad-growth": {"windows": 3},
-    "solver-probe": {"num_envs": 64},
+    "solver-probe": {"num_envs": 64, "task": "ant", "max_steps": 1000, "backend": "newton"},
 }
 
 
@@ -229,7 +229,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
 
     p = sub.add_parser("solver-probe", help="Newton solver/contact settings: forward stability and gradient size")
-    _add(p, "solver-probe", "num_envs", "out")
+    _add(p, "solver-probe", "backend", "task", "num_envs", "max_steps", "out")
     return parser
 
 
@@ -328,7 +328,7 @@ def cmd_gradcheck(args) -> int:
     tolerance = args.tolerance or DEFAULT_TOLERANCE
     start_height = None
     if not args.with_contact and sim.layout.floating_base:
-        start_height = 2.0  # high enough that `steps` of free fall never reach the ground
+        start_height = sim.task.airborne_height  # high enough that `steps` of free fall never reach the ground
     segment = "with contact" if start_height is None else f"contact-free (root lifted to {start_height} m)"
     print(f"gradcheck {args.backend}/{args.task}: {args.num_envs} envs, {args.steps} steps, {segment}", flush=True)
     result = gradcheck(sim, steps=args.steps, seed=args.seed, start_height=start_height)
@@ -502,7 +502,17 @@ def cmd_crosscheck(args) -> int:
 def cmd_solver_probe(args) -> int:
     from harness.solver_probe import run_probe
 
-    run_probe(num_envs=args.num_envs, out=args.out, command=_command())
+    _validate_names(args.backend, args.task)
+    if args.task not in ("ant", "go2"):
+        raise BadInput(f"solver-probe has candidates for the tasks ant and go2, not {args.task!r}")
+    run_probe(
+        num_envs=args.num_envs,
+        out=args.out,
+        command=_command(),
+        task=args.task,
+        steps=args.max_steps,
+        backend=args.backend,
+    )
     return 0
 
 

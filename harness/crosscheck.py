@@ -1,6 +1,6 @@
 """Compare the gradients of two (or more) backends on the same task, start state and actions.
 
-For each segment (contact-free: root lifted to 2 m; with contact: the task's own start) every
+For each segment (contact-free: root lifted to the task's ``airborne_height``; with contact: the task's own start) every
 backend's gradient of the same loss (the summed task reward over ``steps`` control steps) w.r.t.
 the actions and the initial generalized state is computed, and so is each backend's own
 autograd-vs-finite-difference error (:func:`harness.gradcheck.gradcheck`). Reported per pair:
@@ -64,7 +64,7 @@ def crosscheck(
         "action_scale": action_scale,
         "segments": {},
     }
-    for segment, height in (("contact_free", 2.0), ("with_contact", None)):
+    for segment, height in (("contact_free", task.airborne_height), ("with_contact", None)):
         gen = torch.Generator().manual_seed(seed)
         q0, qd0 = task.sample_initial_state(num_envs, gen)
         if height is not None and task.layout.floating_base:

@@ -24,7 +24,7 @@ from harness.train import CHECKPOINT, load_checkpoint
 
 
 def parse_variant(text: str) -> dict:
-    """``"contact_kf=300,joint_limit_ke=100"`` -> PhysicsSpec changes (``""``: none)."""
+    """``"contact_kf=300,joint_limit_ke=100"`` -> changes to the run's PhysicsSpec (``""``: none)."""
     from simcore import PhysicsSpec
 
     names = {f.name for f in dataclasses.fields(PhysicsSpec)}
@@ -34,7 +34,7 @@ def parse_variant(text: str) -> dict:
         if key not in names:
             raise ValueError(f"unknown physics constant {key!r}; choose from: {', '.join(sorted(names))}")
         try:
-            changes[key] = float(value)
+            changes[key] = int(value) if key == "substeps" else float(value)
         except ValueError:
             raise ValueError(f"--variant {key}={value!r}: expected a number") from None
     return changes
@@ -73,7 +73,7 @@ def grad_growth(run: str | Path, variants: list[str], windows: int = 3, seed: in
 
     out = {"run": str(run), "windows": windows, "num_envs": n, "horizon": h, "variants": []}
     for text in variants:
-        variant_task = make_task(config["task"], PhysicsSpec(**parse_variant(text)))
+        variant_task = make_task(config["task"], dataclasses.replace(physics, **parse_variant(text)))
         sim = make_sim(config["backend"], variant_task, n, seed=seed, horizon=h)
         norms = []
         for start, actions in recorded:

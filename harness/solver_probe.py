@@ -1,25 +1,187 @@
-"""``python -m harness solver-probe``: run the Newton solver probe and write its result with provenance.
+"""``python -m harness solver-probe``: evidence for a task's Newton solver settings, written with provenance.
 
-The probe itself (engine code) lives in :mod:`backends.newton.solver_probe`; this verb only feeds it
-the task's asset and physics constants and writes the result file.
+``--task ant`` (the default) runs the Ant probe of :mod:`backends.newton.solver_probe` (engine code fed
+the task's asset and physics). ``--task go2`` probes candidate settings through the adapter itself,
+each candidate a physics change plus adapter options (:data:`GO2_CANDIDATES`):
+
+* forward stability: ``num_envs`` envs x ``steps`` control steps of uniform random actions in
+  (-1, 1) (no gradient): the first non-finite step if any, the trunk-height range, the largest
+  horizontal excursion;
+* standing: 8 envs x ``steps`` steps of zero actions, the lowest trunk height and smallest up_z;
+* gradient: along the first ``windows`` windows of 32 random-action steps, the per-env norm of
+  d(window reward)/d(first actions) (what ``grad-growth`` measures along a trained policy's
+  trajectories), max and median; an exploding adjoint shows up as norms of 1e3 and far above.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import math
+import time
+
+import torch
 
 from harness.results import provenance, write_json
 
+#: (label, physics changes, adapter options) for the Go2 on Newton
+GO2_CANDIDATES = [
+    ("semi_implicit 16 substeps", {}, {"solver": "semi_implicit"}),
+    ("semi_implicit 64 substeps", {"substeps": 64}, {"solver": "semi_implicit"}),
+    ("featherstone armature 0.01 16 substeps", {"armature": 0.01}, {"solver": "featherstone"}),
+    ("featherstone armature 0.01 32 substeps", {"armature": 0.01, "substeps": 32}, {"solver": "featherstone"}),
+    ("featherstone armature 0.1 16 substeps (chosen)", {}, {"solver": "featherstone"}),
+]
 
-def run_probe(num_envs: int = 64, out: str | None = None, command: str | None = None) -> list[dict]:
-    from backends.newton.solver_probe import probe_all
+
+def run_probe(
+    num_envs: int = 64,
+    out: str | None = None,
+    command: str | None = None,
+    task: str = "ant",
+    steps: int = 1000,
+    backend: str = "newton",
+) -> list[dict]:
+    if backend != "newton":  # one solver there: only the standing check of the task's own settings
+        results = [standing(backend, task, steps=steps)]
+        print(json.dumps(results[0]), flush=True)
+    elif task == "go2":
+        results = []
+        for label, changes, options in GO2_CANDIDATES:
+            result = probe_go2_candidate(label, changes, options, num_envs=num_envs, steps=steps)
+            print(json.dumps(result), flush=True)
+            results.append(result)
+    else:
+        from backends.newton.solver_probe import probe_all
+        from tasks import make_task
+
+        ant = make_task("ant")
+        results = []
+        for result in probe_all(str(ant.asset_path), ant.physics, num_envs=num_envs):
+            print(json.dumps(result), flush=True)
+            results.append(result)
+    if out:
+        payload = {"task": task, "backend": backend, "runs": results, "provenance": provenance(command)}
+        print(f"wrote {write_json(out, payload)}")
+    return results
+
+
+def standing(backend: str, task_name: str, steps: int = 1000, num_envs: int = 8, seed: int = 1) -> dict:
+    """Zero actions for ``steps`` control steps on ``backend``: lowest trunk height, smallest up_z."""
+    from backends import NonFiniteStateError, make
     from tasks import make_task
 
-    ant = make_task("ant")
-    results = []
-    for result in probe_all(str(ant.asset_path), ant.physics, num_envs=num_envs):
-        print(json.dumps(result), flush=True)
-        results.append(result)
-    if out:
-        print(f"wrote {write_json(out, {'runs': results, 'provenance': provenance(command)})}")
-    return results
+    task = make_task(task_name)
+    sim = make(backend, task, num_envs=num_envs, seed=seed)
+    low, up_min, failed_at = math.inf, math.inf, None
+    start = time.perf_counter()
+    with torch.no_grad():
+        for t in range(steps):
+            try:
+                state = sim.step(torch.zeros(num_envs, task.action_dim))
+            except NonFiniteStateError:
+                failed_at = t + 1
+                break
+            low = min(low, float(state.root_pos[:, 2].min()))
+            up = torch.nn.functional.normalize(state.root_quat, dim=1)
+            up_min = min(up_min, float(1.0 - 2.0 * (up[:, 0] ** 2 + up[:, 1] ** 2).max()))  # z of the body z axis
+    return {
+        "backend": backend,
+        "zero_actions": {
+            "num_envs": num_envs,
+            "steps": steps,
+            "first_non_finite_step": failed_at,
+            "trunk_height_min": low if failed_at is None else None,
+            "trunk_height_final_mean": float(state.root_pos[:, 2].mean()) if failed_at is None else None,
+            "up_z_min": up_min if failed_at is None else None,
+            "terminated_envs": int(task.terminated(state, None).sum()) if failed_at is None else None,
+        },
+        "seconds": round(time.perf_counter() - start, 1),
+    }
+
+
+def probe_go2_candidate(
+    label: str, changes: dict, options: dict, num_envs: int = 64, steps: int = 1000, windows: int = 3, seed: int = 0
+) -> dict:
+    from backends import NonFiniteStateError, make
+    from tasks.go2 import Go2
+    from tasks.rollout import rollout_reward
+
+    base = Go2()
+    task = Go2(dataclasses.replace(base.physics, **changes))
+    result = {"candidate": label, "physics_changes": changes, "adapter_options": options, "steps": steps}
+    start = time.perf_counter()
+
+    # forward stability under random actions
+    sim = make("newton", task, num_envs=num_envs, seed=seed, max_graph_steps=32, **options)
+    gen = torch.Generator().manual_seed(seed)
+    low, high, reach, failed_at = math.inf, -math.inf, 0.0, None
+    starts, recorded = [], []  # the first `windows` windows of 32 steps, replayed with grad below
+    with torch.no_grad():
+        for t in range(steps):
+            actions = 2.0 * torch.rand(num_envs, 12, generator=gen) - 1.0
+            if t < 32 * windows:
+                if t % 32 == 0:
+                    starts.append(sim.state.detach())
+                    recorded.append([])
+                recorded[-1].append(actions)
+            try:
+                state = sim.step(actions)
+            except NonFiniteStateError:
+                failed_at = t + 1
+                break
+            z = state.root_pos[:, 2]
+            low, high = min(low, float(z.min())), max(high, float(z.max()))
+            reach = max(reach, float(state.root_pos[:, :2].norm(dim=1).max()))
+    result["random_actions"] = {
+        "num_envs": num_envs,
+        "first_non_finite_step": failed_at,
+        "trunk_height_min_max": [low, high] if low <= high else None,
+        "max_horizontal_distance": reach,
+    }
+
+    # standing under zero actions
+    stand = make("newton", task, num_envs=8, seed=seed + 1, **options)
+    low_stand, up_min, stand_failed = math.inf, math.inf, None
+    with torch.no_grad():
+        for t in range(steps):
+            try:
+                state = stand.step(torch.zeros(8, 12))
+            except NonFiniteStateError:
+                stand_failed = t + 1
+                break
+            low_stand = min(low_stand, float(state.root_pos[:, 2].min()))
+            up_min = min(up_min, float(task.up_z(state).min()))
+    result["zero_actions"] = {
+        "num_envs": 8,
+        "first_non_finite_step": stand_failed,
+        "trunk_height_min": low_stand if stand_failed is None else None,
+        "up_z_min": up_min if stand_failed is None else None,
+    }
+
+    # gradients over 32-step windows of the random trajectory
+    norms = []
+    if failed_at is None:
+        for window_start, actions in zip(starts, recorded, strict=True):
+            a = torch.stack(actions).clone().requires_grad_(True)
+            try:
+                rollout_reward(sim, window_start, a).sum().backward()
+            except NonFiniteStateError:
+                norms = None
+                break
+            norms.append(a.grad[0].norm(dim=1))
+    if norms:
+        g = torch.cat(norms)
+        finite = torch.isfinite(g)
+        result["gradient_32_step_windows"] = {
+            "windows": len(starts),
+            "max_norm": float(g[finite].max()) if finite.any() else None,
+            "median_norm": float(g[finite].median()) if finite.any() else None,
+            "non_finite": int((~finite).sum()),
+            "above_1e3": int((g > 1e3).sum()),
+            "env_windows": int(g.numel()),
+        }
+    else:
+        result["gradient_32_step_windows"] = None
+    result["seconds"] = round(time.perf_counter() - start, 1)
+    return result

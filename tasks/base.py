@@ -30,6 +30,8 @@ class Task(ABC):
     action_dim: int
     obs_dim: int
     episode_length: int = 1000
+    #: root height (m) at which a short rollout never touches the ground (contact-free gradient checks)
+    airborne_height: float = 2.0
     backend_options: dict[str, dict[str, object]] = {}  # see simcore.TaskSpec.backend_options
 
     def __init__(self, physics: PhysicsSpec | None = None):

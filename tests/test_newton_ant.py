@@ -133,7 +133,10 @@ def test_malformed_asset_is_one_clear_error(tmp_path, ant):
 
 def test_unsupported_control_kinds_are_refused_at_build(ant):
     class PositionTargetAnt(type(ant)):
-        control_kind = ControlKind.JOINT_POSITION_TARGET
+        control_kind = ControlKind.TET_ACTIVATION
 
-    with pytest.raises(BackendError, match="supports control kinds joint_torque; task .ant. needs"):
+    with pytest.raises(
+        BackendError,
+        match="supports control kinds joint_torque, joint_position_target; task .ant. needs tet_activation",
+    ):
         make("newton", PositionTargetAnt(), num_envs=1)

@@ -83,6 +83,8 @@ that: steps of 1e-3 / 0.1 N m and 1e-4 / 0.01 N m give max errors of 0.27 and 0.
 
 from __future__ import annotations
 
+from xml.etree import ElementTree
+
 import mujoco
 import mujoco_warp as mjw
 import torch
@@ -91,6 +93,7 @@ import warp as wp
 from backends._warp import warp_device
 from backends.contract import BackendError, BatchedSim
 from simcore import (
+    ControlKind,
     SimState,
     StateLayout,
     quat_conjugate,
@@ -106,17 +109,31 @@ _ROOT_V = 6  # free joint: linear velocity (3, world frame) + angular velocity (
 
 
 def build_spec(task) -> mujoco.MjSpec:
-    """The task's MJCF as an ``MjSpec`` set up for this adapter (see the module docstring).
+    """The task's asset as an ``MjSpec`` set up for this adapter (see the module docstring).
 
-    Returned uncompiled so tests can build variants of exactly this model (e.g. with gear-1 motors).
+    MJCF loads as it is. URDF loads after its ``<visual>`` and ``<material>`` elements are dropped
+    (MuJoCo's URDF reader rejects repeated materials, and this adapter never renders), and the root
+    link gets a free joint: MuJoCo reads a URDF as a fixed base, Newton's importer adds the same
+    free joint with ``floating=True``. Returned uncompiled so tests can build variants of exactly
+    this model (e.g. with gear-1 motors).
     """
     phys = task.physics
-    if task.asset_format != "mjcf":
+    if task.asset_format not in ("mjcf", "urdf"):
         raise BackendError(f"the mujoco_warp adapter cannot load {task.asset_format!r} assets yet")
     try:
-        spec = mujoco.MjSpec.from_file(str(task.asset_path))
-    except Exception as exc:  # the parser raises assorted types for malformed files
-        raise BackendError(f"cannot load mjcf asset {task.asset_path}: {exc}") from exc
+        if task.asset_format == "urdf":
+            spec = mujoco.MjSpec.from_string(_urdf_without_visuals(task.asset_path))
+            roots = list(spec.worldbody.bodies)
+            if len(roots) != 1:
+                raise BackendError(f"URDF {task.asset_path.name} has {len(roots)} root links; one is expected")
+            if task.layout.floating_base:
+                roots[0].add_freejoint()
+        else:
+            spec = mujoco.MjSpec.from_file(str(task.asset_path))
+    except BackendError:
+        raise
+    except Exception as exc:  # the parsers raise assorted types for malformed files
+        raise BackendError(f"cannot load {task.asset_format} asset {task.asset_path}: {exc}") from exc
     spec.option.timestep = phys.sim_dt
     spec.option.gravity = [0.0, 0.0, phys.gravity]
     for actuator in list(spec.actuators):  # torques go through qfrc_applied instead
@@ -127,6 +144,8 @@ def build_spec(task) -> mujoco.MjSpec:
     for joint in spec.joints:
         if joint.type == mujoco.mjtJoint.mjJNT_HINGE:
             joint.damping[0] = phys.joint_damping
+            if phys.armature is not None:
+                joint.armature = phys.armature
     if phys.ground_plane:
         spec.worldbody.add_geom(
             name="ground",
@@ -137,6 +156,16 @@ def build_spec(task) -> mujoco.MjSpec:
             conaffinity=1,
         )
     return spec
+
+
+def _urdf_without_visuals(path) -> str:
+    """The URDF's text with every ``<visual>`` and ``<material>`` element removed."""
+    root = ElementTree.parse(path).getroot()
+    for parent in list(root.iter()):
+        for child in list(parent):
+            if child.tag in ("visual", "material"):
+                parent.remove(child)
+    return ElementTree.tostring(root, encoding="unicode")
 
 
 class MujocoWarpSim(BatchedSim):
@@ -151,14 +180,17 @@ class MujocoWarpSim(BatchedSim):
     """
 
     name = "mujoco_warp"
+    contract_tasks = ("ant", "go2")
 
     # -- construction ---------------------------------------------------------------------
     def _build(self) -> None:
         task = self.task
-        if not task.layout.floating_base or task.layout.num_particles:
-            raise BackendError("the mujoco_warp adapter supports floating-base tasks without particles only")
+        if task.layout.num_particles:
+            raise BackendError("the mujoco_warp adapter supports articulated tasks without particles only")
         self.fd_eps_state = float(self.options.get("fd_eps_state", 1e-2))
-        self.fd_eps_control = float(self.options.get("fd_eps_control", 1.0))
+        self.position_control = task.control_kind == ControlKind.JOINT_POSITION_TARGET
+        # 1 N m of torque, or 1e-2 rad of PD target (x kp = 0.3 N m on the Go2); module docstring
+        self.fd_eps_control = float(self.options.get("fd_eps_control", 1e-2 if self.position_control else 1.0))
         self.fd_chunk_envs = int(self.options.get("fd_chunk_envs", self.num_envs))
         self.nconmax = int(self.options.get("nconmax", 32))
         self.njmax = int(self.options.get("njmax", 160))
@@ -171,13 +203,17 @@ class MujocoWarpSim(BatchedSim):
         self.mjm = build_spec(task).compile()
         layout = task.layout
         root_is_free = self.mjm.njnt > 0 and self.mjm.jnt_type[0] == mujoco.mjtJoint.mjJNT_FREE
-        if not root_is_free or self.mjm.nq != layout.nq or self.mjm.nv != layout.nv:
+        if root_is_free != layout.floating_base or self.mjm.nq != layout.nq or self.mjm.nv != layout.nv:
             raise BackendError(
                 f"asset {task.asset_path.name} has nq={self.mjm.nq}, nv={self.mjm.nv} (free root: {root_is_free}); "
-                f"task {task.name!r} expects a free root, nq={layout.nq}, nv={layout.nv}"
+                f"task {task.name!r} expects nq={layout.nq}, nv={layout.nv} (free root: {layout.floating_base})"
             )
-        root_body = int(self.mjm.jnt_bodyid[0])
-        self._com_offset = torch.tensor(self.mjm.body_ipos[root_body], dtype=torch.float32, device=self.device)
+        if self.position_control:
+            self.check_torque_limits()
+        self._com_offset = None  # fixed base: the generalized coordinates are MuJoCo's own
+        if layout.floating_base:
+            root_body = int(self.mjm.jnt_bodyid[0])
+            self._com_offset = torch.tensor(self.mjm.body_ipos[root_body], dtype=torch.float32, device=self.device)
         with wp.ScopedDevice(self.wp_device):
             self.model = mjw.put_model(self.mjm)
         self._data: dict[int, tuple[mjw.Data, dict[str, torch.Tensor]]] = {}
@@ -206,7 +242,10 @@ class MujocoWarpSim(BatchedSim):
 
     # -- simulation -----------------------------------------------------------------------
     def _run_worlds(self, qpos: torch.Tensor, qvel: torch.Tensor, torque: torch.Tensor) -> torch.Tensor:
-        """One control step of ``W`` independent worlds: (W, nq), (W, nv), (W, J) -> next engine (W, D)."""
+        """One control step of ``W`` independent worlds: (W, nq), (W, nv), (W, J) -> next engine (W, D).
+
+        ``torque`` is the joint torque, or for position control the PD target the torque is computed
+        from at every substep (``PhysicsSpec.pd_torque``, applied as ``qfrc_applied``)."""
         data, view = self._data_for(qpos.shape[0])
         root = self.layout.nv - self.layout.num_dofs
         view["qpos"].copy_(qpos)
@@ -216,8 +255,14 @@ class MujocoWarpSim(BatchedSim):
         view["qacc_warmstart"].zero_()
         view["time"].zero_()
         view["overflow"].zero_()
+        phys = self.task.physics
         with wp.ScopedDevice(self.wp_device):
-            for _ in range(self.task.physics.substeps):
+            for _ in range(phys.substeps):
+                if self.position_control:  # the PD law on this substep's state, as Newton's adapter does
+                    wp.synchronize_device(self.wp_device)
+                    hinges = view["qpos"][:, self.layout.nq - self.layout.num_dofs :]
+                    tau = phys.pd_torque(torque, hinges, view["qvel"][:, root:])
+                    view["qfrc_applied"][:, root:] = tau
                 mjw.step(self.model, data)
             wp.synchronize_device(self.wp_device)
         if bool(view["overflow"].any()):
@@ -236,6 +281,10 @@ class MujocoWarpSim(BatchedSim):
         if tuple(control.shape) != expected:
             raise BackendError(f"control must have shape {expected}, got {tuple(control.shape)}")
         return control.to(self.device, torch.float32)
+
+    def _control_joint_position_target(self, control: torch.Tensor) -> torch.Tensor:
+        """JOINT_POSITION_TARGET: the (N, J) targets; the PD torque is evaluated per substep in :meth:`_run_worlds`."""
+        return self._control_joint_torque(control)
 
     def simulate(self, state: SimState, control: torch.Tensor) -> SimState:
         control = self.engine_control(control)
@@ -285,10 +334,6 @@ class MujocoWarpSim(BatchedSim):
         qpos, qvel = self._split(engine)
         d = deltas[:, None, :]  # (K, 1, P) against (1, n, .) nominal
         nv = layout.nv
-        pos = qpos[None, :, 0:3] + d[..., 0:3]
-        turn = quat_from_rotation_vector(d[..., 3:6])  # body-frame rotation: q' = q * exp(delta / 2)
-        quat = xyzw_to_wxyz(quat_mul(wxyz_to_xyzw(qpos[None, :, 3:7]), turn))
-        hinges = qpos[None, :, _ROOT_Q:] + d[..., _ROOT_V:nv]
         vel = qvel[None] + d[..., nv : 2 * nv]
         torque = control[None] + d[..., 2 * nv :]
         worlds = (deltas.shape[0], engine.shape[0])
@@ -296,6 +341,12 @@ class MujocoWarpSim(BatchedSim):
         def flat(*parts: torch.Tensor) -> torch.Tensor:  # (K, n, .) pieces -> (K * n, widths), perturbation-major
             return torch.cat([p.expand(*worlds, p.shape[-1]) for p in parts], dim=-1).flatten(0, 1)
 
+        if not layout.floating_base:  # hinges only: every coordinate moves additively
+            return flat(qpos[None] + d[..., :nv]), flat(vel), flat(torque)
+        pos = qpos[None, :, 0:3] + d[..., 0:3]
+        turn = quat_from_rotation_vector(d[..., 3:6])  # body-frame rotation: q' = q * exp(delta / 2)
+        quat = xyzw_to_wxyz(quat_mul(wxyz_to_xyzw(qpos[None, :, 3:7]), turn))
+        hinges = qpos[None, :, _ROOT_Q:] + d[..., _ROOT_V:nv]
         return flat(pos, quat, hinges), flat(vel), flat(torque)
 
     def tangent_to_ambient_grad(self, engine: torch.Tensor, grad_tangent: torch.Tensor) -> torch.Tensor:
@@ -304,6 +355,8 @@ class MujocoWarpSim(BatchedSim):
         Identity except for the root rotation: ``dL/dq = (2 / |q|) E(conj(q^))^T dL/d delta``
         (module docstring); orthogonal to ``q`` because the step ignores ``|q|``.
         """
+        if not self.layout.floating_base:
+            return grad_tangent
         quat = engine[:, 3:7].to(grad_tangent.dtype)
         norm = quat.norm(dim=1, keepdim=True)
         w, v = quat[:, :1] / norm, quat[:, 1:] / norm
@@ -315,6 +368,8 @@ class MujocoWarpSim(BatchedSim):
 
     # -- engine <-> backend-neutral coordinates ---------------------------------------------
     def _state_from_engine(self, engine: torch.Tensor) -> SimState:
+        if not self.layout.floating_base:
+            return SimState(joint_q=engine[:, : self.layout.nq], joint_qd=engine[:, self.layout.nq :], engine=engine)
         joint_q, joint_qd = engine_to_generalized(engine, self._com_offset)
         return SimState(joint_q=joint_q, joint_qd=joint_qd, engine=engine)
 
@@ -324,6 +379,8 @@ class MujocoWarpSim(BatchedSim):
             raise BackendError("particles are not supported by the mujoco_warp adapter")
         joint_q = joint_q.to(self.device, torch.float32)
         joint_qd = joint_qd.to(self.device, torch.float32)
+        if not self.layout.floating_base:
+            return self._state_from_engine(torch.cat((joint_q, joint_qd), dim=1))
         return self._state_from_engine(generalized_to_engine(joint_q, joint_qd, self._com_offset))
 
 

@@ -85,6 +85,7 @@ class NewtonSim(BatchedSim):
     """
 
     name = "newton"
+    contract_tasks = ("ant", "go2")
     SOLVERS = ("semi_implicit", "featherstone")
 
     # -- construction ---------------------------------------------------------------------
@@ -139,9 +140,8 @@ class NewtonSim(BatchedSim):
             )
         self.pipeline = newton.CollisionPipeline(model, requires_grad=True)
         if self.position_control:
+            self.check_torque_limits()
             limits = phys.torque_limits or (float("inf"),) * task.layout.num_dofs
-            if len(limits) != task.layout.num_dofs:
-                raise BackendError(f"{len(limits)} torque limits for {task.layout.num_dofs} joints of {task.name!r}")
             self._pd_limits = wp.array(np.asarray(limits, dtype=np.float32), dtype=float, device=self.wp_device)
         self._frames: list[_Frame] = []
         self._cursor = 0
@@ -384,9 +384,9 @@ class NewtonSim(BatchedSim):
         joint_q = joint_q.to(self.device, torch.float32)
         joint_qd = joint_qd.to(self.device, torch.float32)
         if self.featherstone:  # generalized coordinates are the engine state (quaternion normalised, as FK does)
-            joint_q = torch.cat(
-                (joint_q[:, :3], torch.nn.functional.normalize(joint_q[:, 3:7], dim=1), joint_q[:, 7:]), 1
-            )
+            if self.layout.floating_base:
+                quat = torch.nn.functional.normalize(joint_q[:, 3:7], dim=1)
+                joint_q = torch.cat((joint_q[:, :3], quat, joint_q[:, 7:]), dim=1)
             return SimState(joint_q=joint_q, joint_qd=joint_qd, engine=torch.cat((joint_q, joint_qd), dim=1))
         engine = _NewtonFK.apply(self, joint_q, joint_qd)
         return SimState(joint_q=joint_q, joint_qd=joint_qd, engine=engine)
@@ -474,7 +474,9 @@ def bare_tape_rollout(sim: NewtonSim, horizon: int, repeats: int = 1, seed: int 
     The reference for the adapter's overhead: the same model, solver, contact pipeline, substeps
     and fresh state buffers per substep, one tape over the whole window, a loss on the final
     body positions, ``tape.backward`` and ``tape.zero``. Position-target tasks run the same PD
-    kernel per substep as the adapter. Returns the best of ``repeats``.
+    kernel per substep as the adapter. Featherstone runs as raw Newton does, on the solver's own
+    system-matrix buffers (the adapter points the solver at per-frame copies instead, so that its
+    replay is exact; the arithmetic is the same). Returns the best of ``repeats``.
     """
     import time
 

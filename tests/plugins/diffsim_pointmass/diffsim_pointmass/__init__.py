@@ -54,7 +54,7 @@ class PointMassSim(BatchedSim):
     """The contract implemented in ~30 lines of torch: no tape, no buffers, autograd does the rest."""
 
     name = "pointmass"
-    contract_task = "pointmass"
+    contract_tasks = ("pointmass",)
     mass = 1.0
     drag = 0.5
 
