@@ -12,8 +12,8 @@ import math
 
 import torch
 
-from simcore import ControlKind, SimState, StateLayout, quat_from_angle_axis, quat_mul, quat_rotate
-from tasks.base import ASSET_DIR, Task
+from simcore import ControlKind, SimState, StateLayout, quat_rotate
+from tasks.base import ASSET_DIR, Task, random_tilt, symmetric_uniform
 
 # hip_1, ankle_1, hip_2, ankle_2, hip_3, ankle_3, hip_4, ankle_4 (the asset's joint order)
 DEFAULT_DOF_Q = (0.0, 1.0, 0.0, -1.0, 0.0, -1.0, 0.0, 1.0)
@@ -40,14 +40,12 @@ class Ant(Task):
 
     def sample_initial_state(self, num_envs: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
         def uniform(*shape: int) -> torch.Tensor:  # U(-1, 1)
-            return 2.0 * torch.rand(*shape, generator=generator) - 1.0
+            return symmetric_uniform(generator, *shape)
 
         q0, _ = self.default_state()
         q = q0.repeat(num_envs, 1)
         q[:, 0:3] += 0.1 * uniform(num_envs, 3)
-        angle = math.pi / 24.0 * uniform(num_envs)
-        axis = torch.nn.functional.normalize(uniform(num_envs, 3), dim=-1)
-        q[:, 3:7] = quat_mul(q[:, 3:7], quat_from_angle_axis(angle, axis))
+        q[:, 3:7] = random_tilt(q[:, 3:7], math.pi / 24.0, generator)
         q[:, 7:] += 0.2 * uniform(num_envs, 8)
         qd = 0.25 * uniform(num_envs, self.layout.nv)
         return q, qd

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import torch
 
-from simcore import ControlKind, PhysicsSpec, SimState, StateLayout
+from simcore import ControlKind, PhysicsSpec, SimState, StateLayout, quat_from_angle_axis, quat_mul
 
 ASSET_DIR = Path(__file__).resolve().parent / "assets"
 
@@ -61,4 +61,18 @@ class Task(ABC):
         """(N,) bool: the episode ends here (no bootstrap)."""
 
 
-__all__ = ["ASSET_DIR", "PhysicsSpec", "Task"]
+def symmetric_uniform(generator: torch.Generator, *shape: int) -> torch.Tensor:
+    """Samples of U(-1, 1) from ``generator``."""
+    return 2.0 * torch.rand(*shape, generator=generator) - 1.0
+
+
+def random_tilt(quat: torch.Tensor, max_angle: float, generator: torch.Generator) -> torch.Tensor:
+    """``quat`` (N, 4) turned in its own frame by U(-max_angle, max_angle) about a random axis
+    (the angle is drawn first, then the axis)."""
+    n = quat.shape[0]
+    angle = max_angle * symmetric_uniform(generator, n)
+    axis = torch.nn.functional.normalize(symmetric_uniform(generator, n, 3), dim=-1)
+    return quat_mul(quat, quat_from_angle_axis(angle, axis))
+
+
+__all__ = ["ASSET_DIR", "PhysicsSpec", "Task", "random_tilt", "symmetric_uniform"]

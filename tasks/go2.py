@@ -31,11 +31,9 @@ from simcore import (
     SimState,
     StateLayout,
     quat_conjugate,
-    quat_from_angle_axis,
-    quat_mul,
     quat_rotate,
 )
-from tasks.base import ASSET_DIR, Task
+from tasks.base import ASSET_DIR, Task, random_tilt, symmetric_uniform
 
 #: the URDF's actuated joints, in the order of the state's dof block (and of the actions)
 JOINT_NAMES = tuple(f"{leg}_{part}_joint" for leg in ("FL", "FR", "RL", "RR") for part in ("hip", "thigh", "calf"))
@@ -98,15 +96,13 @@ class Go2(Task):
 
     def sample_initial_state(self, num_envs: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
         def uniform(*shape: int) -> torch.Tensor:  # U(-1, 1)
-            return 2.0 * torch.rand(*shape, generator=generator) - 1.0
+            return symmetric_uniform(generator, *shape)
 
         q0, _ = self.default_state()
         q = q0.repeat(num_envs, 1)
         q[:, 0:2] += 0.1 * uniform(num_envs, 2)
         q[:, 2] += 0.02 * (uniform(num_envs) + 1.0)  # up to 4 cm higher: tilted feet stay above ground
-        angle = math.pi / 36.0 * uniform(num_envs)  # up to 5 degrees about a random axis
-        axis = torch.nn.functional.normalize(uniform(num_envs, 3), dim=-1)
-        q[:, 3:7] = quat_mul(q[:, 3:7], quat_from_angle_axis(angle, axis))
+        q[:, 3:7] = random_tilt(q[:, 3:7], math.pi / 36.0, generator)  # up to 5 degrees
         q[:, 7:] += 0.1 * uniform(num_envs, 12)
         qd = 0.1 * uniform(num_envs, self.layout.nv)
         return q, qd

@@ -156,6 +156,15 @@ CLI_CASES = [
         None,
         "unknown algorithm",
     ),
+    ("solver-probe unknown task", ["solver-probe", "--task", "dog"], None, "unknown task"),
+    ("solver-probe task without candidates", ["solver-probe", "--task", "pointmass"], None, "candidates for the tasks"),
+    ("solver-probe zero steps", ["solver-probe", "--task", "go2", "--max-steps", "0"], None, "positive integer"),
+    (
+        "grad-growth substeps variant as text",
+        ["grad-growth", "--run", "RUN", "--variant", "substeps=x"],
+        None,
+        "substeps",
+    ),
 ]
 
 

@@ -5,13 +5,18 @@ Gradients here are honest central finite differences of one control step, comput
 env at once in one large batch of worlds and chained by torch autograd (a vector-Jacobian
 product per step).
 
-Model (:func:`build_spec`): the task's MJCF through ``mujoco.MjSpec``, plus a z-up ground plane
-(the asset has none). The MJCF's motors are removed: joint torques enter as ``qfrc_applied`` on the
-hinge dofs, so nothing is applied twice. Timestep ``physics.sim_dt`` (1/960 s) with ``physics.substeps``
-(16) MuJoCo steps per control step, Euler integrator (MuJoCo's default; joint damping implicit).
-Friction ``physics.contact_mu`` on every geom and the plane; joint damping ``physics.joint_damping``
-on the hinges; armature and ranges from the MJCF. Self-collisions are off (``contype``/``conaffinity``),
-as in the Newton adapter: only geom-ground contacts exist.
+Model (:func:`build_spec`): the task's MJCF or URDF through ``mujoco.MjSpec``, plus a z-up ground
+plane (the asset has none). A URDF is read without its ``<visual>``/``<material>`` elements and its
+root link gets a free joint (for a floating-base task; MuJoCo reads URDFs as fixed bases), the same
+free joint Newton's importer adds. The asset's motors are removed: joint torques enter as
+``qfrc_applied`` on the hinge dofs, so nothing is applied twice; ``JOINT_POSITION_TARGET`` computes
+that torque from the task's PD law (``PhysicsSpec.pd_torque``) before every substep, from the
+substep's own joint positions and velocities, as Newton's adapter does on its tape. Timestep
+``physics.sim_dt`` (1/960 s) with ``physics.substeps`` (16) MuJoCo steps per control step, Euler
+integrator (MuJoCo's default; joint damping implicit). Friction ``physics.contact_mu`` on every geom
+and the plane; joint damping ``physics.joint_damping`` on the hinges; armature ``physics.armature``
+(or the asset's when ``None``) and ranges from the asset. Self-collisions are off
+(``contype``/``conaffinity``), as in the Newton adapter: only geom-ground contacts exist.
 
 Contact models differ between engines. MuJoCo's contacts and joint limits are soft *constraints*
 solved each step, with a pyramidal friction cone; Newton's are penalty springs. The task's penalty
@@ -20,9 +25,10 @@ here. ``solref`` keeps MuJoCo's default (0.02 s, 1): a critically damped respons
 time constant, ~19 substeps, comfortably resolved by the integrator (MuJoCo asks for at least 2
 timesteps). MuJoCo also honours the armature (0.05), which Newton's semi-implicit solver ignores.
 
-Engine state (N, D), D = nq + nv = 29 for the Ant: MuJoCo's ``qpos`` (root position, root
-quaternion w-x-y-z, hinges) and ``qvel`` (root linear velocity of the body origin in the world
-frame, root angular velocity in the *body* frame, hinge velocities). The backend-neutral fields
+Engine state (N, D), D = nq + nv = 29 for the Ant (37 for the Go2; a fixed base has hinges only):
+MuJoCo's ``qpos`` (root position, root quaternion w-x-y-z, hinges) and ``qvel`` (root linear
+velocity of the body origin in the world frame, root angular velocity in the *body* frame, hinge
+velocities). The backend-neutral fields
 are computed from it in torch (differentiable): quaternion reordered to x-y-z-w, angular velocity
 rotated to the world frame, linear velocity moved to the root's centre of mass
 (``v_com = v_origin + w_world x R c`` with ``c = body_ipos`` of the root).
@@ -66,6 +72,12 @@ Gradients (:meth:`MujocoWarpSim.fd_jacobians`, :class:`_MujocoWarpStep`):
   column keeps improving up to 10 N m because one control step is nearly affine in the torque;
   1 N m is taken instead because it moves the joint velocities by ~0.015 rad/s, the same size as
   the state step, so both probe the same neighbourhood when contacts make the step rough.
+  Position targets (the Go2, 1 + 2 (2 nv + nu) = 97 worlds per env): ``fd_eps_control`` = 1e-2 rad
+  by default, measured the same way against float64 MuJoCo C central differences (step 1e-6) of the
+  same control step with the PD law per substep (3 Go2s in the air; ``tests/test_go2.py`` keeps the
+  check at < 1e-3): steps (state, target) of (1e-2, 1e-2) give 1.8e-5 and 1.8e-5; (3e-3, 3e-3) 5.4e-5
+  and 4.8e-5; (1e-3, 1e-3) 1.5e-4 and 1.4e-4; a target step of 3e-2 or 1e-1 gives 5.0e-6 or 1.6e-6
+  (again nearly affine), but 1e-2 rad (0.3 N m through kp = 30) keeps both steps in one neighbourhood.
 * Cost: 73 worlds per env for a step with grad, 1 without; on the 2-core CPU, a control step
   takes ~0.1 s without grad for 2 to 64 envs (kernel-launch bound) and, forward + backward,
   ~0.15 s for 2 envs and 2 to 2.7 s for 64 envs (4672 worlds). ``fd_chunk_envs`` (default: all envs)
