@@ -8,12 +8,13 @@ y-up); the target direction is +x.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
 
 from simcore import ControlKind, SimState, StateLayout, quat_rotate
-from tasks.base import ASSET_DIR, Task, random_tilt, symmetric_uniform
+from tasks.base import ASSET_DIR, Task, floating_base_pose, random_tilt, symmetric_uniform
 
 # hip_1, ankle_1, hip_2, ankle_2, hip_3, ankle_3, hip_4, ankle_4 (the asset's joint order)
 DEFAULT_DOF_Q = (0.0, 1.0, 0.0, -1.0, 0.0, -1.0, 0.0, 1.0)
@@ -35,13 +36,10 @@ class Ant(Task):
     target_distance = 1.0e4  # a far target along +x makes "heading" a projection onto +x
 
     def default_state(self) -> tuple[torch.Tensor, torch.Tensor]:
-        q = torch.tensor((0.0, 0.0, START_HEIGHT, 0.0, 0.0, 0.0, 1.0) + DEFAULT_DOF_Q)
-        return q, torch.zeros(self.layout.nv)
+        return floating_base_pose(START_HEIGHT, DEFAULT_DOF_Q)
 
     def sample_initial_state(self, num_envs: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
-        def uniform(*shape: int) -> torch.Tensor:  # U(-1, 1)
-            return symmetric_uniform(generator, *shape)
-
+        uniform = functools.partial(symmetric_uniform, generator)  # U(-1, 1) of a shape
         q0, _ = self.default_state()
         q = q0.repeat(num_envs, 1)
         q[:, 0:3] += 0.1 * uniform(num_envs, 3)

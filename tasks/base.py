@@ -61,6 +61,13 @@ class Task(ABC):
         """(N,) bool: the episode ends here (no bootstrap)."""
 
 
+def floating_base_pose(height: float, dof_q: tuple[float, ...]) -> tuple[torch.Tensor, torch.Tensor]:
+    """Generalized coordinates of a floating-base robot at rest: root at ``(0, 0, height)``, upright,
+    joints at ``dof_q``; and zero velocities."""
+    q = torch.tensor((0.0, 0.0, height, 0.0, 0.0, 0.0, 1.0) + tuple(dof_q))
+    return q, torch.zeros(6 + len(dof_q))
+
+
 def symmetric_uniform(generator: torch.Generator, *shape: int) -> torch.Tensor:
     """Samples of U(-1, 1) from ``generator``."""
     return 2.0 * torch.rand(*shape, generator=generator) - 1.0
@@ -75,4 +82,4 @@ def random_tilt(quat: torch.Tensor, max_angle: float, generator: torch.Generator
     return quat_mul(quat, quat_from_angle_axis(angle, axis))
 
 
-__all__ = ["ASSET_DIR", "PhysicsSpec", "Task", "random_tilt", "symmetric_uniform"]
+__all__ = ["ASSET_DIR", "PhysicsSpec", "Task", "floating_base_pose", "random_tilt", "symmetric_uniform"]

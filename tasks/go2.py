@@ -21,6 +21,7 @@ Episodes end after 1000 control steps (60 Hz, 16.7 s) or when the trunk falls (h
 
 from __future__ import annotations
 
+import functools
 import math
 
 import torch
@@ -33,7 +34,7 @@ from simcore import (
     quat_conjugate,
     quat_rotate,
 )
-from tasks.base import ASSET_DIR, Task, random_tilt, symmetric_uniform
+from tasks.base import ASSET_DIR, Task, floating_base_pose, random_tilt, symmetric_uniform
 
 #: the URDF's actuated joints, in the order of the state's dof block (and of the actions)
 JOINT_NAMES = tuple(f"{leg}_{part}_joint" for leg in ("FL", "FR", "RL", "RR") for part in ("hip", "thigh", "calf"))
@@ -91,13 +92,10 @@ class Go2(Task):
         super().__init__(physics or GO2_PHYSICS)
 
     def default_state(self) -> tuple[torch.Tensor, torch.Tensor]:
-        q = torch.tensor((0.0, 0.0, START_HEIGHT, 0.0, 0.0, 0.0, 1.0) + DEFAULT_DOF_Q)
-        return q, torch.zeros(self.layout.nv)
+        return floating_base_pose(START_HEIGHT, DEFAULT_DOF_Q)
 
     def sample_initial_state(self, num_envs: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
-        def uniform(*shape: int) -> torch.Tensor:  # U(-1, 1)
-            return symmetric_uniform(generator, *shape)
-
+        uniform = functools.partial(symmetric_uniform, generator)  # U(-1, 1) of a shape
         q0, _ = self.default_state()
         q = q0.repeat(num_envs, 1)
         q[:, 0:2] += 0.1 * uniform(num_envs, 2)

@@ -1,9 +1,10 @@
 """Newton adapter: exact gradients from ``wp.Tape`` wrapped in ``torch.autograd.Function``.
 
-Solver: :class:`newton.solvers.SolverSemiImplicit` (symplectic Euler in maximal coordinates with
-penalty joints and penalty contacts). README ("Newton solver choice") records the probe that
-chose it: on the Ant with ground contact its gradients are finite and match finite differences,
-while ``SolverFeatherstone`` returned NaN gradients in the same probe.
+Solvers (option ``solver``): :class:`newton.solvers.SolverSemiImplicit` by default (symplectic Euler
+in maximal coordinates with penalty joints and penalty contacts; README "Newton solver choice": on the
+Ant its gradients are finite and match finite differences), or :class:`newton.solvers.SolverFeatherstone`
+(generalized coordinates; the Go2 selects it through its ``backend_options``, because the
+semi-implicit solver goes non-finite on it in the first step: README "Go2 on Newton").
 
 How gradients stay exact:
 
@@ -18,6 +19,11 @@ How gradients stay exact:
   which pairs touch is discrete); contact forces are re-evaluated from the current body poses at
   every substep inside the tape. A contact gap of ``contact_gap`` metres keeps candidates valid
   for the motion within one control step.
+* Featherstone keeps its system matrices in solver-owned buffers that every step overwrites; each
+  frame owns a copy the solver is pointed at (``_Frame.matrices``), rebuilt once per control step
+  by default (``mass_matrix_every``).
+* ``JOINT_POSITION_TARGET``: the PD law runs as a kernel on the tape before every substep, reading
+  that substep's joint coordinates and writing that substep's own ``joint_f``.
 * Without grad (``torch.no_grad()`` or inputs that need none) the step runs without a tape on
   two ping-pong buffers.
 """
