@@ -259,8 +259,8 @@ def test_nan_gradient_skips_the_update_and_keeps_weights(env, monkeypatch):
     before = {k: v.clone() for k, v in algo.actor.state_dict().items()}
     original = env.task.reward
 
-    def poisoned(state, obs, actions):
-        r = original(state, obs, actions)
+    def poisoned(state, obs, actions, prev_actions):
+        r = original(state, obs, actions, prev_actions)
         return r + torch.where(torch.arange(N) == 3, torch.tensor(float("nan")), torch.tensor(0.0))
 
     monkeypatch.setattr(env.task, "reward", poisoned)
