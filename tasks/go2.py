@@ -7,9 +7,10 @@ joint themselves.
 
 Control (``JOINT_POSITION_TARGET``): target = default pose + ``action_scale`` * a, with a = tanh(u)
 in (-1, 1) from the actor; the adapters apply the PD law of :class:`simcore.PhysicsSpec`,
-tau = clip(kp (target - q) - kd qd, +-limit), at every substep. Gains, action scale and default
-pose are those of Unitree's own RL setup for the Go2 (unitree_rl_gym ``go2_config``: kp 20,
-kd 0.5, scale 0.25, hips +-0.1, thighs 0.8 front / 1.0 rear, calves -1.5); the torque limits are
+tau = clip(kp (target - q) - kd qd, +-limit), at every substep. Action scale and default pose are
+those of Unitree's own RL setup for the Go2 (unitree_rl_gym ``go2_config``: scale 0.25, hips +-0.1,
+thighs 0.8 front / 1.0 rear, calves -1.5); its gains (kp 20, kd 0.5) let the standing trunk sink to
+the termination height within 300 steps here, so kp 30, kd 0.7 (README "Go2"). The torque limits are
 the URDF's joint efforts (23.7 N m hip and thigh, 45.43 N m calf).
 
 Reward (differentiable in every term; README writes it out):

@@ -188,7 +188,8 @@ class MujocoWarpSim(BatchedSim):
     32) contacts and ``njmax`` (default 160) constraint rows per world (the Ant's 13 geoms on the plane
     make at most 25 contacts, 4 rows each in the pyramidal cone, plus 8 joint-limit rows; an overflow
     raises :class:`BackendError`). The contract's ``max_graph_steps`` is not needed: the Jacobians
-    live in the autograd graph, so there is no buffer ring to size. Control kinds: joint torques.
+    live in the autograd graph, so there is no buffer ring to size. Control kinds: joint torques and
+    joint position targets (the PD law per substep).
     """
 
     name = "mujoco_warp"
