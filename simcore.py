@@ -263,6 +263,13 @@ def quat_rotate(q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     return v + w * t + torch.linalg.cross(xyz, t, dim=-1)
 
 
+def up_z(q: torch.Tensor) -> torch.Tensor:
+    """z component (...,) of the body z axis of orientations ``q`` (..., 4): 1 upright, 0 on its side."""
+    z = torch.zeros(q.shape[:-1] + (3,), dtype=q.dtype, device=q.device)
+    z[..., 2] = 1.0
+    return quat_rotate(q, z)[..., 2]
+
+
 def quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """Hamilton product ``a * b`` (apply ``b`` first, then ``a``)."""
     ax, ay, az, aw = a.unbind(-1)

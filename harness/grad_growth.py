@@ -27,14 +27,15 @@ def parse_variant(text: str) -> dict:
     """``"contact_kf=300,joint_limit_ke=100"`` -> changes to the run's PhysicsSpec (``""``: none)."""
     from simcore import PhysicsSpec
 
-    names = {f.name for f in dataclasses.fields(PhysicsSpec)}
+    types = {f.name: f.type for f in dataclasses.fields(PhysicsSpec)}  # annotations as text: "int", "float", ...
+    names = set(types)
     changes = {}
     for item in filter(None, text.split(",")):
         key, _, value = item.partition("=")
         if key not in names:
             raise ValueError(f"unknown physics constant {key!r}; choose from: {', '.join(sorted(names))}")
         try:
-            changes[key] = int(value) if key == "substeps" else float(value)
+            changes[key] = int(value) if types[key] == "int" else float(value)
         except ValueError:
             raise ValueError(f"--variant {key}={value!r}: expected a number") from None
     return changes

@@ -43,7 +43,7 @@ def run_probe(
     backend: str = "newton",
 ) -> list[dict]:
     if backend != "newton":  # one solver there: only the standing check of the task's own settings
-        results = [standing(backend, task, steps=steps)]
+        results = [standing(backend, task, steps=steps, num_envs=num_envs)]
         print(json.dumps(results[0]), flush=True)
     elif task == "go2":
         results = []
@@ -67,36 +67,42 @@ def run_probe(
 
 
 def standing(backend: str, task_name: str, steps: int = 1000, num_envs: int = 8, seed: int = 1) -> dict:
-    """Zero actions for ``steps`` control steps on ``backend``: lowest trunk height, smallest up_z."""
-    from backends import NonFiniteStateError, make
+    """Zero actions for ``steps`` control steps on ``backend`` with the task's own settings."""
+    from backends import make
     from tasks import make_task
 
     task = make_task(task_name)
-    sim = make(backend, task, num_envs=num_envs, seed=seed)
-    low, up_min, failed_at = math.inf, math.inf, None
     start = time.perf_counter()
+    stand = zero_action_stand(make(backend, task, num_envs=num_envs, seed=seed), steps)
+    return {"backend": backend, "zero_actions": stand, "seconds": round(time.perf_counter() - start, 1)}
+
+
+def zero_action_stand(sim, steps: int) -> dict:
+    """Step ``sim`` under zero actions: the first non-finite step, or the lowest root height, its final
+    mean, the smallest up_z and how many envs the task counts as terminated at the end."""
+    from backends import NonFiniteStateError
+    from simcore import up_z
+
+    task, n = sim.task, sim.num_envs
+    low, up_min, failed_at = math.inf, math.inf, None
     with torch.no_grad():
         for t in range(steps):
             try:
-                state = sim.step(torch.zeros(num_envs, task.action_dim))
+                state = sim.step(torch.zeros(n, task.action_dim))
             except NonFiniteStateError:
                 failed_at = t + 1
                 break
             low = min(low, float(state.root_pos[:, 2].min()))
-            up = torch.nn.functional.normalize(state.root_quat, dim=1)
-            up_min = min(up_min, float(1.0 - 2.0 * (up[:, 0] ** 2 + up[:, 1] ** 2).max()))  # z of the body z axis
+            up_min = min(up_min, float(up_z(state.root_quat).min()))
+    finished = failed_at is None
     return {
-        "backend": backend,
-        "zero_actions": {
-            "num_envs": num_envs,
-            "steps": steps,
-            "first_non_finite_step": failed_at,
-            "trunk_height_min": low if failed_at is None else None,
-            "trunk_height_final_mean": float(state.root_pos[:, 2].mean()) if failed_at is None else None,
-            "up_z_min": up_min if failed_at is None else None,
-            "terminated_envs": int(task.terminated(state, None).sum()) if failed_at is None else None,
-        },
-        "seconds": round(time.perf_counter() - start, 1),
+        "num_envs": n,
+        "steps": steps,
+        "first_non_finite_step": failed_at,
+        "trunk_height_min": low if finished else None,
+        "trunk_height_final_mean": float(state.root_pos[:, 2].mean()) if finished else None,
+        "up_z_min": up_min if finished else None,
+        "terminated_envs": int(task.terminated(state, None).sum()) if finished else None,
     }
 
 
@@ -141,23 +147,7 @@ def probe_go2_candidate(
     }
 
     # standing under zero actions
-    stand = make("newton", task, num_envs=8, seed=seed + 1, **options)
-    low_stand, up_min, stand_failed = math.inf, math.inf, None
-    with torch.no_grad():
-        for t in range(steps):
-            try:
-                state = stand.step(torch.zeros(8, 12))
-            except NonFiniteStateError:
-                stand_failed = t + 1
-                break
-            low_stand = min(low_stand, float(state.root_pos[:, 2].min()))
-            up_min = min(up_min, float(task.up_z(state).min()))
-    result["zero_actions"] = {
-        "num_envs": 8,
-        "first_non_finite_step": stand_failed,
-        "trunk_height_min": low_stand if stand_failed is None else None,
-        "up_z_min": up_min if stand_failed is None else None,
-    }
+    result["zero_actions"] = zero_action_stand(make("newton", task, num_envs=8, seed=seed + 1, **options), steps)
 
     # gradients over 32-step windows of the random trajectory
     norms = []

@@ -34,6 +34,7 @@ from simcore import (
     StateLayout,
     quat_conjugate,
     quat_rotate,
+    up_z,
 )
 from tasks.base import ASSET_DIR, Task, floating_base_pose, random_tilt, symmetric_uniform
 
@@ -134,9 +135,7 @@ class Go2(Task):
 
     def up_z(self, state: SimState) -> torch.Tensor:
         """z component of the trunk's up axis (1 upright, 0 on its side)."""
-        z = torch.zeros_like(state.root_pos)
-        z[:, 2] = 1.0
-        return quat_rotate(state.root_quat, z)[:, 2]
+        return up_z(state.root_quat)
 
     def reward(
         self, state: SimState, obs: torch.Tensor, actions: torch.Tensor, prev_actions: torch.Tensor

@@ -102,7 +102,6 @@ class NewtonSim(BatchedSim):
         solver = self.options.get("solver", "semi_implicit")
         if solver not in self.SOLVERS:
             raise BackendError(f"newton solver must be one of {', '.join(self.SOLVERS)}, got {solver!r}")
-        self.solver_name = solver
         self.featherstone = solver == "featherstone"
         self.position_control = task.control_kind == ControlKind.JOINT_POSITION_TARGET
         self.wp_device = warp_device(self.device)
@@ -274,22 +273,17 @@ class NewtonSim(BatchedSim):
         else:
             q, qd = frame.pd_q[s], frame.pd_qd[s]
             newton.eval_ik(self.model, state, q, qd)
+        self.launch_pd(frame.target, q, qd, control.joint_f)
+
+    def launch_pd(self, target: wp.array, q: wp.array, qd: wp.array, joint_f: wp.array) -> None:
+        """One launch of :func:`_pd_torque` with the task's gains and limits (the adapter's and the
+        bare rollout's)."""
         layout, phys = self.layout, self.task.physics
         wp.launch(
             _pd_torque,
             dim=(self.num_envs, layout.num_dofs),
-            inputs=[
-                frame.target,
-                q,
-                qd,
-                self._pd_limits,
-                phys.pd_kp,
-                phys.pd_kd,
-                layout.nq,
-                layout.nv,
-                layout.num_dofs,
-            ],
-            outputs=[control.joint_f],
+            inputs=[target, q, qd, self._pd_limits, phys.pd_kp, phys.pd_kd, layout.nq, layout.nv, layout.num_dofs],
+            outputs=[joint_f],
             device=self.model.device,
         )
 
@@ -339,7 +333,7 @@ class NewtonSim(BatchedSim):
         out_a, out_b = self._state_arrays(last)
         if self.featherstone:  # joint_q / joint_qd are views of the engine rows: one gradient
             nq = self.layout.nq
-            total = torch.zeros(self.num_envs, self.layout.nq + self.layout.nv, dtype=torch.float32)
+            total = torch.zeros(self.num_envs, self.layout.nq + self.layout.nv, device=self.device)
             for grad, cols in ((grad_engine, slice(None)), (grad_q, slice(0, nq)), (grad_qd, slice(nq, None))):
                 if grad is not None:
                     total[:, cols] += grad.float()
@@ -519,14 +513,7 @@ def bare_tape_rollout(sim: NewtonSim, horizon: int, repeats: int = 1, seed: int 
                         pd_q, pd_qd = states[s].joint_q, states[s].joint_qd
                         if not sim.featherstone:
                             newton.eval_ik(model, states[s], pd_q, pd_qd)
-                        wp.launch(
-                            _pd_torque,
-                            dim=(sim.num_envs, layout.num_dofs),
-                            inputs=[targets[t], pd_q, pd_qd, sim._pd_limits, phys.pd_kp, phys.pd_kd]
-                            + [layout.nq, layout.nv, layout.num_dofs],
-                            outputs=[control.joint_f],
-                            device=model.device,
-                        )
+                        sim.launch_pd(targets[t], pd_q, pd_qd, control.joint_f)
                     sim.solver.step(states[s], states[s + 1], control, contacts[t], phys.sim_dt)
         with tape:
             wp.launch(_sum_positions, dim=model.body_count, inputs=[states[-1].body_q], outputs=[loss])
