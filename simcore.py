@@ -181,6 +181,129 @@ class PhysicsSpec:
         return torch.maximum(torch.minimum(tau, limit), -limit)
 
 
+@dataclass(frozen=True, eq=False)
+class SoftBodySpec:
+    """A tetrahedral Neo-Hookean body driven by per-tetrahedron activations (``TET_ACTIVATION``).
+
+    ``vertices`` (P, 3) and ``tets`` (T, 4) are the rest mesh at scale 1 (positive tet volumes);
+    env ``e`` simulates that mesh scaled by ``rest_scales(N)[e]`` (rest shape, masses and all), a
+    fixed spread of body sizes over the envs that every adapter and the task agree on. Material in
+    SI units: Lame parameters ``k_mu``, ``k_lambda`` (Pa), viscous ``k_damp`` (Pa s), ``density``
+    (kg/m^3); every tet gives a quarter of its mass to each of its vertices. Ground contact uses the
+    task's :class:`PhysicsSpec` contact constants with particles of radius ``particle_radius``.
+
+    Activation ``a`` of a tet enters the volumetric term of the energy as Newton's FEM does: the
+    volume force is ``k_lambda * V * (J - alpha + a) * dJ/dx`` (J = det F), so ``a > 0`` pulls the
+    tet's vertices inwards as if it were larger than it is (:func:`activation_nodal_forces`).
+    """
+
+    vertices: torch.Tensor  # (P, 3) float64, rest positions at scale 1
+    tets: torch.Tensor  # (T, 4) int64
+    k_mu: float
+    k_lambda: float
+    k_damp: float
+    density: float
+    particle_radius: float = 0.0
+    scale_spread: float = 0.0  # env scales are 1 + scale_spread * U(-1, 1)
+    scale_seed: int = 0  # the fixed draw of env scales
+
+    def __post_init__(self) -> None:
+        check_tet_mesh(self.vertices, self.tets)
+        for name in ("k_mu", "k_lambda", "density"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ValueError(f"SoftBodySpec.{name} must be a finite number > 0, got {value!r}")
+        for name in ("k_damp", "particle_radius", "scale_spread"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"SoftBodySpec.{name} must be a finite number >= 0, got {value!r}")
+        if self.scale_spread >= 1:
+            raise ValueError(f"SoftBodySpec.scale_spread must be < 1 (scales stay positive), got {self.scale_spread}")
+
+    @property
+    def num_particles(self) -> int:
+        return int(self.vertices.shape[0])
+
+    @property
+    def num_tets(self) -> int:
+        return int(self.tets.shape[0])
+
+    def rest_scales(self, num_envs: int) -> torch.Tensor:
+        """(N,) float64 scale of each env's body: the same for a given ``num_envs`` everywhere."""
+        gen = torch.Generator().manual_seed(self.scale_seed)
+        u = 2.0 * torch.rand(num_envs, generator=gen, dtype=torch.float64) - 1.0
+        return 1.0 + self.scale_spread * u
+
+    def tet_volumes(self) -> torch.Tensor:
+        """(T,) rest volumes at scale 1."""
+        return signed_tet_volumes(self.vertices, self.tets)
+
+    def particle_masses(self) -> torch.Tensor:
+        """(P,) float64 masses at scale 1 (a quarter of every incident tet's mass)."""
+        share = (self.density * self.tet_volumes() / 4.0).unsqueeze(1).expand(-1, 4)
+        masses = torch.zeros(self.num_particles, dtype=torch.float64)
+        return masses.index_add_(0, self.tets.reshape(-1), share.reshape(-1))
+
+
+class TetMeshError(ValueError):
+    """A tetrahedral mesh an FEM engine would misread (no tets, degenerate or inverted ones, bad indices)."""
+
+
+def signed_tet_volumes(vertices: torch.Tensor, tets: torch.Tensor) -> torch.Tensor:
+    """Signed volume (T,) of every tetrahedron: det([x1 - x0, x2 - x0, x3 - x0]) / 6."""
+    x = vertices.double()[tets]
+    return torch.linalg.det(x[:, 1:] - x[:, :1]) / 6.0
+
+
+def check_tet_mesh(vertices: torch.Tensor, tets: torch.Tensor, min_volume: float = 1e-12) -> None:
+    """Refuse a mesh an FEM engine would misread, with one line saying what is wrong."""
+    vertices, tets = torch.as_tensor(vertices), torch.as_tensor(tets)
+    if vertices.dim() != 2 or vertices.shape[1] != 3 or vertices.shape[0] == 0:
+        raise TetMeshError(f"vertices must have shape (P, 3) with P >= 1, got {tuple(vertices.shape)}")
+    if not vertices.is_floating_point() or not bool(torch.isfinite(vertices).all()):
+        raise TetMeshError("vertices must be finite floating-point numbers")
+    if tets.dim() != 2 or tets.shape[1] != 4:
+        raise TetMeshError(f"tetrahedra must have shape (T, 4), got {tuple(tets.shape)}")
+    if tets.shape[0] == 0:
+        raise TetMeshError("the mesh has no tetrahedra")
+    if tets.is_floating_point() or tets.is_complex() or tets.dtype == torch.bool:
+        raise TetMeshError(f"tetrahedron indices must be integers, got {tets.dtype}")
+    low, high = int(tets.min()), int(tets.max())
+    if low < 0 or high >= vertices.shape[0]:
+        raise TetMeshError(f"tetrahedron indices must lie in [0, {vertices.shape[0]}), got {low}..{high}")
+    volumes = signed_tet_volumes(vertices, tets.long())
+    bad = (volumes <= min_volume).nonzero().flatten()
+    if bad.numel():
+        first = int(bad[0])
+        kind = "inverted" if float(volumes[first]) < -min_volume else "zero-volume"
+        raise TetMeshError(
+            f"{bad.numel()} tetrahedra are inverted or zero-volume (first: tet {first}, {kind}, "
+            f"volume {float(volumes[first]):.3g}); every tet needs positive volume"
+        )
+
+
+def activation_nodal_forces(
+    particle_q: torch.Tensor, tets: torch.Tensor, activation: torch.Tensor, k_lambda: float
+) -> torch.Tensor:
+    """Forces (N, P, 3) on the particles from the activation term of :class:`SoftBodySpec`.
+
+    The activation part of the volume force of tet ``t`` is ``-a_t * k_lambda * V_t * dJ/dx_i`` on
+    vertex ``i``; with ``J = det(D_s) / det(D_m)`` and ``V_t det(D_m)^-1 = 1/6`` it needs no rest
+    data: vertex 1 gets ``-a k_lambda (x2 - x0) x (x3 - x0) / 6`` (2 and 3 likewise by cyclic
+    order), vertex 0 minus their sum. ``particle_q`` (N, P, 3), ``tets`` (T, 4), ``activation`` (N, T).
+    """
+    x = particle_q[:, tets]  # (N, T, 4, 3)
+    e1, e2, e3 = (x[:, :, i] - x[:, :, 0] for i in (1, 2, 3))
+    scale = (-activation * k_lambda / 6.0).unsqueeze(-1)
+    f1 = scale * torch.linalg.cross(e2, e3, dim=-1)
+    f2 = scale * torch.linalg.cross(e3, e1, dim=-1)
+    f3 = scale * torch.linalg.cross(e1, e2, dim=-1)
+    per_vertex = torch.stack((-(f1 + f2 + f3), f1, f2, f3), dim=2)  # (N, T, 4, 3)
+    forces = torch.zeros_like(particle_q)
+    index = tets.reshape(-1).to(particle_q.device)
+    return forces.index_add(1, index, per_vertex.reshape(particle_q.shape[0], -1, 3))
+
+
 class TaskSpec(Protocol):
     """What an adapter may read of a task (``tasks.base.Task`` provides it): data, no observations."""
 
@@ -194,9 +317,13 @@ class TaskSpec(Protocol):
     #: per-adapter settings the task was validated with, e.g. ``{"newton": {"solver": "featherstone"}}``;
     #: an adapter reads its own entry, and options passed to it explicitly override them
     backend_options: Mapping[str, Mapping[str, object]]
+    #: ``TET_ACTIVATION`` tasks: the soft body (mesh, material, env scales); ``None`` otherwise
+    soft_body: SoftBodySpec | None
 
-    def sample_initial_state(self, num_envs: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
-        """Randomised generalized initial coordinates: ``joint_q`` (N, nq), ``joint_qd`` (N, nv)."""
+    def sample_initial_state(self, num_envs: int, generator: torch.Generator) -> tuple[torch.Tensor, ...]:
+        """Randomised initial coordinates: ``joint_q`` (N, nq), ``joint_qd`` (N, nv), and for tasks with
+        particles also ``particle_q``, ``particle_qd`` (N, P, 3): the arguments of
+        ``state_from_generalized``."""
         ...
 
     def actions_to_control(self, actions: torch.Tensor) -> torch.Tensor:

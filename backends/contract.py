@@ -87,20 +87,31 @@ class BatchedSim(ABC):
 
         @functools.wraps(impl)
         def checked(self, joint_q, joint_qd, particle_q=None, particle_qd=None):
-            self.check_generalized(joint_q, joint_qd)
+            self.check_generalized(joint_q, joint_qd, particle_q, particle_qd)
             return impl(self, joint_q, joint_qd, particle_q, particle_qd)
 
         checked.checks_input = True
         cls.state_from_generalized = checked
 
-    def check_generalized(self, joint_q, joint_qd) -> None:
-        """Refuse generalized coordinates an engine would misread, with one line naming what is expected."""
+    def check_generalized(self, joint_q, joint_qd, particle_q=None, particle_qd=None) -> None:
+        """Refuse coordinates an engine would misread, with one line naming what is expected."""
         layout, n = self.layout, self.num_envs
-        for name, value, width in (("joint_q", joint_q, layout.nq), ("joint_qd", joint_qd, layout.nv)):
+        expected = [("joint_q", joint_q, (n, layout.nq)), ("joint_qd", joint_qd, (n, layout.nv))]
+        if layout.num_particles:
+            p = layout.num_particles
+            expected += [("particle_q", particle_q, (n, p, 3)), ("particle_qd", particle_qd, (n, p, 3))]
+        elif particle_q is not None or particle_qd is not None:
+            raise InvalidStateError(f"task {self.task.name!r} has no particles; particle_q/particle_qd must be None")
+        for name, value, shape in expected:
             if not isinstance(value, torch.Tensor) or not value.is_floating_point():
                 raise InvalidStateError(f"{name} must be a floating-point torch.Tensor, got {type(value).__name__}")
-            if tuple(value.shape) != (n, width):
-                raise InvalidStateError(f"{name} must have shape {(n, width)}, got {tuple(value.shape)}")
+            if tuple(value.shape) != shape:
+                raise InvalidStateError(f"{name} must have shape {shape}, got {tuple(value.shape)}")
+        if layout.num_particles:
+            particles = torch.cat((particle_q.detach(), particle_qd.detach()), dim=1)
+            bad = (~torch.isfinite(particles).flatten(1).all(dim=1)).nonzero().flatten().tolist()
+            if bad:
+                raise InvalidStateError(f"particle state contains NaN or inf in env(s) {bad[:16]}")
         if layout.floating_base:
             norms = joint_q.detach()[:, 3:7].norm(dim=1)
             bad = (norms < 1e-8).nonzero().flatten().tolist()
@@ -209,8 +220,8 @@ class BatchedSim(ABC):
     def _initial_state(self) -> SimState:
         """Freshly randomised, detached initial states for all envs (callers pick rows)."""
         with torch.no_grad():
-            q, qd = self.task.sample_initial_state(self.num_envs, self.generator)
-            return self.state_from_generalized(q.to(self.device), qd.to(self.device)).detach()
+            parts = self.task.sample_initial_state(self.num_envs, self.generator)
+            return self.state_from_generalized(*(part.to(self.device) for part in parts)).detach()
 
     def _env_mask(self, env_ids: torch.Tensor | list[int]) -> torch.Tensor:
         env_ids = torch.as_tensor(env_ids, dtype=torch.long, device=self.device)

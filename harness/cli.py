@@ -327,13 +327,17 @@ def cmd_gradcheck(args) -> int:
     sim = _make_sim(args, horizon=args.steps)
     tolerance = args.tolerance or DEFAULT_TOLERANCE
     start_height = None
-    if not args.with_contact and sim.layout.floating_base:
+    lifted = "root" if sim.layout.floating_base else "lowest particle" if sim.layout.num_particles else None
+    if not args.with_contact and lifted:
         start_height = sim.task.airborne_height  # high enough that `steps` of free fall never reach the ground
-    segment = "with contact" if start_height is None else f"contact-free (root lifted to {start_height} m)"
+    segment = "with contact" if start_height is None else f"contact-free ({lifted} lifted to {start_height} m)"
     print(f"gradcheck {args.backend}/{args.task}: {args.num_envs} envs, {args.steps} steps, {segment}", flush=True)
     result = gradcheck(sim, steps=args.steps, seed=args.seed, start_height=start_height)
-    print(f"  d loss / d actions:        max relative error {result.action_rel_error:.3e}")
-    print(f"  d loss / d initial state:  max relative error {result.state_rel_error:.3e}")
+    for label, error, mode in (
+        ("d loss / d actions:      ", result.action_rel_error, result.action_mode),
+        ("d loss / d initial state:", result.state_rel_error, result.state_mode),
+    ):
+        print(f"  {label}  max relative error {error:.3e} (central differences per {mode[:-1]})")
     ok = result.max_rel_error <= tolerance
     print(f"max relative error {result.max_rel_error:.3e} (tolerance {tolerance:.1e}): {'PASS' if ok else 'FAIL'}")
     return 0 if ok else 1

@@ -1,8 +1,9 @@
 """Check an adapter's autograd gradients against central finite differences.
 
-The loss is the task's own objective over a short rollout, ``L = sum_t sum_envs r_t``, so the
-check covers exactly the path SHAC differentiates: actions -> engine -> state -> observation ->
-reward. Gradients are taken w.r.t. every action of every step and w.r.t. the initial generalized
+The loss is the task's own objective over a short rollout plus a stand-in for the critic's
+terminal value, ``L = sum_envs (sum_t r_t + w . o_T)`` with a fixed random ``w``, so the check covers
+exactly the paths SHAC differentiates: actions -> engine -> state -> observation -> reward and
+-> last observation. Gradients are taken w.r.t. every action of every step and w.r.t. the initial generalized
 state (root pose and velocity, joint positions and velocities).
 
 Envs are independent, so one perturbation of coordinate ``i`` in *every* env at once gives the
@@ -23,7 +24,7 @@ from dataclasses import dataclass
 import torch
 
 from backends.contract import BatchedSim
-from tasks.rollout import rollout_reward
+from tasks.rollout import rollout
 
 # Why these numbers: the engines run in float32 (~7 significant digits). With losses of O(1-10)
 # and steps of 1e-2 (actions, i.e. 2 N m of torque) and 1e-3 (state), round-off in a central
@@ -35,6 +36,12 @@ ACTION_EPS = 1e-2
 STATE_EPS = 1e-3
 
 
+#: above this many coordinates of one kind (a soft body's ~1,000 particle coordinates, hundreds of
+#: activations per step), central differences go along random directions instead of coordinates
+MAX_COORDINATES = 512
+DIRECTIONS = 16
+
+
 @dataclass
 class GradcheckResult:
     action_rel_error: float
@@ -42,16 +49,33 @@ class GradcheckResult:
     steps: int
     num_envs: int
     loss: float
+    #: "coordinates" (every coordinate perturbed) or "directions" (DIRECTIONS random +-1 directions)
+    action_mode: str = "coordinates"
+    state_mode: str = "coordinates"
 
     @property
     def max_rel_error(self) -> float:
         return max(self.action_rel_error, self.state_rel_error)
 
 
-def rollout_loss(sim: BatchedSim, q0: torch.Tensor, qd0: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
-    """Per-env loss (N,): the task's rewards summed over actions (T, N, A) from generalized state (q0, qd0),
-    with the env's step semantics (:func:`tasks.rollout.rollout_reward`)."""
-    return rollout_reward(sim, sim.state_from_generalized(q0, qd0), actions)
+def rollout_loss(
+    sim: BatchedSim,
+    q0: torch.Tensor,
+    qd0: torch.Tensor,
+    actions: torch.Tensor,
+    particle_q0: torch.Tensor | None = None,
+    particle_qd0: torch.Tensor | None = None,
+    value_probe: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """Per-env loss (N,): the task's rewards summed over actions (T, N, A) from the initial state
+    (q0, qd0[, particle_q0, particle_qd0]), with the env's step semantics (:func:`tasks.rollout.rollout`),
+    plus ``value_probe . o_T`` (a linear stand-in for SHAC's terminal value of the last observation)
+    when ``value_probe`` (obs_dim,) is given."""
+    state = sim.state_from_generalized(q0, qd0, particle_q0, particle_qd0)
+    total, last_obs = rollout(sim, state, actions)
+    if value_probe is None:
+        return total
+    return total + last_obs.double() @ value_probe.to(last_obs.device, torch.float64)
 
 
 def _fd_per_env(fn, x: torch.Tensor, eps: float) -> torch.Tensor:
@@ -73,12 +97,34 @@ def _fd_per_env(fn, x: torch.Tensor, eps: float) -> torch.Tensor:
     return grad
 
 
+def _fd_directional(fn, x: torch.Tensor, eps: float, directions: torch.Tensor) -> torch.Tensor:
+    """(N, K) central differences of fn (per env) along ``directions`` (K, N, D) at ``x`` (N, D)."""
+    x = x.detach()
+    out = torch.zeros(x.shape[0], directions.shape[0], dtype=torch.float64)
+    for k, d in enumerate(directions):
+        with torch.no_grad():
+            out[:, k] = ((fn(x + eps * d) - fn(x - eps * d)) / (2.0 * eps)).cpu()
+    return out
+
+
 def _rel_error(autograd: torch.Tensor, fd: torch.Tensor) -> float:
     """max over envs of ||a - f|| / ||f||; env axis at dim -2."""
     a = autograd.double().movedim(-2, 0).reshape(autograd.shape[-2], -1)
     f = fd.double().movedim(-2, 0).reshape(fd.shape[-2], -1)
     err = (a - f).norm(dim=1) / f.norm(dim=1).clamp_min(1e-12)
     return float(err.max())
+
+
+def _check_kind(fn, x: torch.Tensor, grad: torch.Tensor, eps: float, gen: torch.Generator) -> tuple[float, str]:
+    """Relative error of ``grad`` (N, D) against central differences of ``fn`` at ``x`` (N, D):
+    per coordinate up to MAX_COORDINATES, else along DIRECTIONS random +-1 directions (the same
+    comparison of directional derivatives ``grad . d`` that a broken gradient fails just as surely)."""
+    if x.shape[1] <= MAX_COORDINATES:
+        return _rel_error(grad, _fd_per_env(fn, x, eps)), "coordinates"
+    signs = torch.randint(0, 2, (DIRECTIONS, *x.shape), generator=gen).to(x) * 2.0 - 1.0
+    fd = _fd_directional(fn, x, eps, signs)
+    ad = torch.einsum("knd,nd->nk", signs.double(), grad.double()).cpu()
+    return _rel_error(ad, fd), "directions"
 
 
 def gradcheck(
@@ -90,35 +136,59 @@ def gradcheck(
 ) -> GradcheckResult:
     """Compare autograd and central-difference gradients of the rollout loss.
 
-    ``start_height`` lifts the root (floating-base tasks) so the whole rollout is in the air:
-    a smooth, contact-free segment where finite differences are trustworthy. ``None`` keeps
-    the task's own initial height (contact included).
+    ``start_height`` lifts the body so the whole rollout is in the air: a smooth, contact-free
+    segment where finite differences are trustworthy (a floating base's root to that height; a
+    soft body's lowest particle). ``None`` keeps the task's own initial state (contact included).
     """
     gen = torch.Generator().manual_seed(seed)
-    q0, qd0 = sim.task.sample_initial_state(sim.num_envs, gen)
+    parts = [p.clone() for p in sim.task.sample_initial_state(sim.num_envs, gen)]
     if start_height is not None:
-        q0[:, 2] = start_height
-    q0, qd0 = q0.to(sim.device), qd0.to(sim.device)
-    actions = action_scale * (2.0 * torch.rand(steps, sim.num_envs, sim.task.action_dim, generator=gen) - 1.0)
+        if sim.layout.floating_base:
+            parts[0][:, 2] = start_height
+        if sim.layout.num_particles:
+            z = parts[2][..., 2]
+            parts[2][..., 2] = z + (start_height - z.amin(dim=1, keepdim=True))
+    parts = [p.to(sim.device) for p in parts]
+    n, a_dim = sim.num_envs, sim.task.action_dim
+    actions = action_scale * (2.0 * torch.rand(steps, n, a_dim, generator=gen) - 1.0)
     actions = actions.to(sim.device)
 
-    q_var = q0.clone().requires_grad_(True)
-    qd_var = qd0.clone().requires_grad_(True)
-    a_var = actions.clone().requires_grad_(True)
-    loss = rollout_loss(sim, q_var, qd_var, a_var)
-    loss.sum().backward()
+    # every initial-state part flattened into one (N, D) block, actions into (N, T * A)
+    shapes = [p.shape for p in parts]
+    state0 = torch.cat([p.reshape(n, -1) for p in parts], dim=1)
+    flat_actions = actions.permute(1, 0, 2).reshape(n, -1)
 
-    fd_actions = _fd_per_env(lambda a: rollout_loss(sim, q0, qd0, a), actions, ACTION_EPS)
-    fd_q = _fd_per_env(lambda q: rollout_loss(sim, q, qd0, actions), q0, STATE_EPS)
-    fd_qd = _fd_per_env(lambda qd: rollout_loss(sim, q0, qd, actions), qd0, STATE_EPS)
+    def unflatten_state(x: torch.Tensor) -> list[torch.Tensor]:
+        chunks = torch.split(x, [int(torch.Size(shape[1:]).numel()) for shape in shapes], dim=1)
+        return [c.reshape(shape) for c, shape in zip(chunks, shapes, strict=True)]
+
+    def unflatten_actions(x: torch.Tensor) -> torch.Tensor:
+        return x.reshape(n, steps, a_dim).permute(1, 0, 2)
+
+    # SHAC's actor loss ends with the critic's value of the last observation, so the check covers the
+    # observation path too: a fixed random linear function of o_T stands in for it (for a soft body in
+    # the air it is the only part of the loss that sees the activations: they move no centre of mass)
+    probe = torch.randn(sim.task.obs_dim, generator=gen, dtype=torch.float64) / sim.task.obs_dim**0.5
+
+    def loss_of(state_flat: torch.Tensor, actions_flat: torch.Tensor) -> torch.Tensor:
+        q, qd, *particles = unflatten_state(state_flat)
+        return rollout_loss(sim, q, qd, unflatten_actions(actions_flat), *particles, value_probe=probe)
+
+    s_var = state0.clone().requires_grad_(True)
+    a_var = flat_actions.clone().requires_grad_(True)
+    loss = loss_of(s_var, a_var)
+    loss.sum().backward()
     # a missing gradient (no autograd path at all) counts as zero, i.e. 100% error
-    grads = [v.grad if v.grad is not None else torch.zeros_like(v) for v in (q_var, qd_var, a_var)]
-    state_ad = torch.cat(grads[:2], dim=-1)
-    state_fd = torch.cat((fd_q, fd_qd), dim=-1)
+    g_state = s_var.grad if s_var.grad is not None else torch.zeros_like(s_var)
+    g_actions = a_var.grad if a_var.grad is not None else torch.zeros_like(a_var)
+    action_err, action_mode = _check_kind(lambda a: loss_of(state0, a), flat_actions, g_actions, ACTION_EPS, gen)
+    state_err, state_mode = _check_kind(lambda s: loss_of(s, flat_actions), state0, g_state, STATE_EPS, gen)
     return GradcheckResult(
-        action_rel_error=_rel_error(grads[2], fd_actions),
-        state_rel_error=_rel_error(state_ad, state_fd),
+        action_rel_error=action_err,
+        state_rel_error=state_err,
         steps=steps,
-        num_envs=sim.num_envs,
+        num_envs=n,
         loss=float(loss.detach().sum()),
+        action_mode=action_mode,
+        state_mode=state_mode,
     )

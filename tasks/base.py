@@ -14,7 +14,7 @@ from pathlib import Path
 
 import torch
 
-from simcore import ControlKind, PhysicsSpec, SimState, StateLayout, quat_from_angle_axis, quat_mul
+from simcore import ControlKind, PhysicsSpec, SimState, SoftBodySpec, StateLayout, quat_from_angle_axis, quat_mul
 
 ASSET_DIR = Path(__file__).resolve().parent / "assets"
 
@@ -33,13 +33,15 @@ class Task(ABC):
     #: root height (m) at which a short rollout never touches the ground (contact-free gradient checks)
     airborne_height: float = 2.0
     backend_options: dict[str, dict[str, object]] = {}  # see simcore.TaskSpec.backend_options
+    soft_body: SoftBodySpec | None = None  # TET_ACTIVATION tasks: the soft body (simcore.SoftBodySpec)
 
     def __init__(self, physics: PhysicsSpec | None = None):
         self.physics = physics or PhysicsSpec()
 
     @abstractmethod
-    def sample_initial_state(self, num_envs: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
-        """Randomised generalized initial coordinates: ``joint_q`` (N, nq), ``joint_qd`` (N, nv)."""
+    def sample_initial_state(self, num_envs: int, generator: torch.Generator) -> tuple[torch.Tensor, ...]:
+        """Randomised initial coordinates: ``joint_q`` (N, nq), ``joint_qd`` (N, nv), then for tasks with
+        particles ``particle_q``, ``particle_qd`` (N, P, 3) (see ``simcore.TaskSpec``)."""
 
     @abstractmethod
     def actions_to_control(self, actions: torch.Tensor) -> torch.Tensor:

@@ -28,10 +28,11 @@ def transition(
     return next_state, obs, task.reward(next_state, obs, actions, prev_actions)
 
 
-def rollout_reward(
+def rollout(
     sim, state: SimState, actions: torch.Tensor, prev_actions: torch.Tensor | None = None
-) -> torch.Tensor:
-    """Per-env sum (N,) float64 of the task's rewards over ``actions`` (T, N, A) from ``state``.
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per-env sum (N,) float64 of the task's rewards over ``actions`` (T, N, A) from ``state``, and
+    the observation (N, obs_dim) after the last step (what a critic would value).
 
     ``prev_actions`` (N, A): the actions before the first step (default zeros, as after a reset).
     No episode bookkeeping: termination and resets are the env's business, so callers choose
@@ -39,8 +40,17 @@ def rollout_reward(
     """
     total = torch.zeros(actions.shape[1], dtype=torch.float64, device=actions.device)
     prev = torch.zeros_like(actions[0]) if prev_actions is None else prev_actions
+    obs = None
     for t in range(actions.shape[0]):
-        state, _, reward = transition(sim, state, actions[t], prev)
+        state, obs, reward = transition(sim, state, actions[t], prev)
         total = total + reward.double()
         prev = actions[t]
-    return total
+    return total, obs
+
+
+def rollout_reward(
+    sim, state: SimState, actions: torch.Tensor, prev_actions: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Per-env sum (N,) float64 of the task's rewards over ``actions`` (T, N, A) from ``state``
+    (:func:`rollout`)."""
+    return rollout(sim, state, actions, prev_actions)[0]

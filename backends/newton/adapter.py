@@ -104,29 +104,26 @@ class NewtonSim(BatchedSim):
             raise BackendError(f"newton solver must be one of {', '.join(self.SOLVERS)}, got {solver!r}")
         self.featherstone = solver == "featherstone"
         self.position_control = task.control_kind == ControlKind.JOINT_POSITION_TARGET
+        self.soft = task.control_kind == ControlKind.TET_ACTIVATION
+        if self.soft and self.featherstone:
+            raise BackendError("soft bodies run on the semi_implicit solver (featherstone has no FEM)")
         self.wp_device = warp_device(self.device)
 
         shape_cfg = newton.ModelBuilder.ShapeConfig(
             ke=phys.contact_ke, kd=phys.contact_kd, kf=phys.contact_kf, mu=phys.contact_mu, gap=contact_gap
         )
-        template = newton.ModelBuilder(gravity=(0.0, 0.0, phys.gravity))
-        template.default_shape_cfg = shape_cfg
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # missing visual meshes and similar import chatter
-            self._load_asset(template)
-        self.bodies_per_env = template.body_count
-        if template.joint_dof_count != task.layout.nv or template.joint_coord_count != task.layout.nq:
-            raise BackendError(
-                f"asset {task.asset_path.name} has {template.joint_coord_count} coordinates and "
-                f"{template.joint_dof_count} dofs, task {task.name!r} expects {task.layout.nq} and {task.layout.nv}"
-            )
-
-        builder = newton.ModelBuilder(gravity=(0.0, 0.0, phys.gravity))
-        builder.replicate(template, self.num_envs)
+        if self.soft:
+            builder = self._soft_builder()
+            self.bodies_per_env = 0
+        else:
+            builder = self._articulation_builder(shape_cfg)
         if phys.ground_plane:
             builder.add_ground_plane(cfg=shape_cfg)
         model = builder.finalize(device=self.wp_device, requires_grad=True)
-        self._apply_physics(model)
+        if self.soft:
+            self._apply_soft_physics(model)
+        else:
+            self._apply_physics(model)
         self.model = model
         if self.featherstone:
             self.mass_matrix_every = int(self.options.get("mass_matrix_every", phys.substeps))
@@ -143,7 +140,10 @@ class NewtonSim(BatchedSim):
                 joint_attach_ke=float(self.options.get("joint_attach_ke", 1.0e4)),
                 joint_attach_kd=float(self.options.get("joint_attach_kd", 1.0e2)),
             )
-        self.pipeline = newton.CollisionPipeline(model, requires_grad=True)
+        if self.soft:  # particle-ground candidates within contact_gap of the plane, found once per control step
+            self.pipeline = newton.CollisionPipeline(model, requires_grad=True, soft_contact_gap=contact_gap)
+        else:
+            self.pipeline = newton.CollisionPipeline(model, requires_grad=True)
         if self.position_control:
             self.check_torque_limits()
             limits = phys.torque_limits or (float("inf"),) * task.layout.num_dofs
@@ -151,6 +151,62 @@ class NewtonSim(BatchedSim):
         self._frames: list[_Frame] = []
         self._cursor = 0
         self._scratch = _Frame(self, 2)
+
+    def _articulation_builder(self, shape_cfg) -> newton.ModelBuilder:
+        """``num_envs`` copies of the task's articulated asset."""
+        task, phys = self.task, self.task.physics
+        template = newton.ModelBuilder(gravity=(0.0, 0.0, phys.gravity))
+        template.default_shape_cfg = shape_cfg
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # missing visual meshes and similar import chatter
+            self._load_asset(template)
+        self.bodies_per_env = template.body_count
+        if template.joint_dof_count != task.layout.nv or template.joint_coord_count != task.layout.nq:
+            raise BackendError(
+                f"asset {task.asset_path.name} has {template.joint_coord_count} coordinates and "
+                f"{template.joint_dof_count} dofs, task {task.name!r} expects {task.layout.nq} and {task.layout.nv}"
+            )
+        builder = newton.ModelBuilder(gravity=(0.0, 0.0, phys.gravity))
+        builder.replicate(template, self.num_envs)
+        return builder
+
+    def _soft_builder(self) -> newton.ModelBuilder:
+        """One soft body per env: the task's tet mesh scaled by the env's size factor, its particles
+        carrying a quarter of each incident tet's mass (``SoftBodySpec``), one FEM element per tet."""
+        task, phys, body = self.task, self.task.physics, self.task.soft_body
+        if body is None:
+            raise BackendError(f"task {task.name!r} asks for tet activations but defines no soft_body")
+        layout = task.layout
+        if (body.num_particles, body.num_tets) != (layout.num_particles, layout.num_tets):
+            raise BackendError(
+                f"soft body has {body.num_particles} particles and {body.num_tets} tets, task {task.name!r} "
+                f"expects {layout.num_particles} and {layout.num_tets}"
+            )
+        builder = newton.ModelBuilder(gravity=(0.0, 0.0, phys.gravity))
+        masses = body.particle_masses()
+        tets = body.tets.tolist()
+        for scale in body.rest_scales(self.num_envs).tolist():
+            first = builder.particle_count
+            builder.add_particles(
+                pos=[tuple(p) for p in (body.vertices * scale).tolist()],
+                vel=[(0.0, 0.0, 0.0)] * body.num_particles,
+                mass=(masses * scale**3).tolist(),
+                radius=[body.particle_radius] * body.num_particles,
+            )
+            for tet in tets:  # rest shapes (D_m) from the scaled positions just added
+                builder.add_tetrahedron(*(first + v for v in tet), body.k_mu, body.k_lambda, body.k_damp)
+        return builder
+
+    def _apply_soft_physics(self, model: newton.Model) -> None:
+        """Particle-ground contact constants (the kernel averages particle and shape values: both are
+        the task's), no particle-particle contact (Newton warns that it may corrupt gradients, and envs
+        overlap in space)."""
+        phys = self.task.physics
+        model.soft_contact_ke = phys.contact_ke
+        model.soft_contact_kd = phys.contact_kd
+        model.soft_contact_kf = phys.contact_kf
+        model.soft_contact_mu = phys.contact_mu
+        model.particle_grid = None
 
     _MATRICES = ("M", "J", "P", "H", "L")
 
@@ -210,6 +266,9 @@ class NewtonSim(BatchedSim):
         if self.featherstone:
             nq = self.layout.nq
             return engine[:, :nq].reshape(-1).contiguous(), engine[:, nq:].reshape(-1).contiguous()
+        if self.soft:
+            half = 3 * self.layout.num_particles
+            return engine[:, :half].reshape(-1, 3).contiguous(), engine[:, half:].reshape(-1, 3).contiguous()
         n_pose = self.bodies_per_env * _POSE
         body_q = engine[:, :n_pose].reshape(-1, _POSE).contiguous()
         body_qd = engine[:, n_pose:].reshape(-1, _TWIST).contiguous()
@@ -219,12 +278,16 @@ class NewtonSim(BatchedSim):
         """The solver state's own variables: generalized for Featherstone, maximal otherwise."""
         if self.featherstone:
             return state.joint_q, state.joint_qd
+        if self.soft:
+            return state.particle_q, state.particle_qd
         return state.body_q, state.body_qd
 
     def _to_warp(self, engine: torch.Tensor) -> tuple[wp.array, wp.array]:
         a, b = self._split_engine(engine)
         if self.featherstone:
             return wp.from_torch(a), wp.from_torch(b)
+        if self.soft:
+            return wp.from_torch(a, dtype=wp.vec3), wp.from_torch(b, dtype=wp.vec3)
         return wp.from_torch(a, dtype=wp.transform), wp.from_torch(b, dtype=wp.spatial_vector)
 
     def _join_engine(self, a: wp.array, b: wp.array) -> torch.Tensor:
@@ -240,10 +303,19 @@ class NewtonSim(BatchedSim):
     def _load_frame_inputs(self, frame: _Frame, engine: torch.Tensor, control: torch.Tensor) -> None:
         self._load_state(frame.states[0], engine)
         flat = wp.from_torch(control.detach().float().reshape(-1).contiguous())
-        wp.copy(frame.target if self.position_control else frame.control.joint_f, flat)
+        wp.copy(self._control_array(frame), flat)
+
+    def _control_array(self, frame: _Frame) -> wp.array:
+        """Where a frame's control tensor goes: PD targets, tet activations or joint forces."""
+        if self.position_control:
+            return frame.target
+        return frame.control.tet_activations if self.soft else frame.control.joint_f
 
     def _outputs(self, frame: _Frame, last: newton.State) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         engine = self._join_engine(*self._state_arrays(last)).clone()
+        if self.soft:  # no joints: particle_q / particle_qd are torch views of the engine (simulate)
+            empty = engine.new_zeros(self.num_envs, 0)
+            return engine, empty, empty.clone()
         if self.featherstone:
             nq = self.layout.nq
             return engine, engine[:, :nq].clone(), engine[:, nq:].clone()
@@ -295,7 +367,7 @@ class NewtonSim(BatchedSim):
         for s in range(self.task.physics.substeps):
             self._substep(a, b, frame, s)
             a, b = b, a
-        if not self.featherstone:
+        if not (self.featherstone or self.soft):
             newton.eval_ik(self.model, a, frame.joint_q, frame.joint_qd)
         return self._outputs(frame, a)
 
@@ -318,7 +390,7 @@ class NewtonSim(BatchedSim):
         with tape:
             for s in range(self.task.physics.substeps):
                 self._substep(states[s], states[s + 1], frame, s)
-            if not self.featherstone:
+            if not (self.featherstone or self.soft):
                 newton.eval_ik(self.model, states[-1], frame.joint_q, frame.joint_qd)
         frame.tape = tape
         return frame
@@ -342,13 +414,15 @@ class NewtonSim(BatchedSim):
         if grad_engine is not None:
             for array, g in zip((out_a, out_b), self._to_warp(grad_engine.float()), strict=True):
                 grads[array] = g
+        if self.soft:  # the (N, 0) joint outputs carry no gradient
+            grad_q = grad_qd = None
         if grad_q is not None:
             grads[frame.joint_q] = wp.from_torch(grad_q.float().reshape(-1).contiguous())
         if grad_qd is not None:
             grads[frame.joint_qd] = wp.from_torch(grad_qd.float().reshape(-1).contiguous())
         frame.tape.backward(grads=grads)
         grad_engine_in = self._join_engine(*(a.grad for a in self._state_arrays(frame.states[0]))).clone()
-        control_grad = frame.target.grad if self.position_control else frame.control.joint_f.grad
+        control_grad = self._control_array(frame).grad
         grad_control = wp.to_torch(control_grad).reshape(self.num_envs, -1).clone()
         frame.tape.zero()
         return grad_engine_in, grad_control
@@ -359,7 +433,28 @@ class NewtonSim(BatchedSim):
             engine, joint_q, joint_qd = _NewtonStep.apply(self, state.engine, control)
         else:
             engine, joint_q, joint_qd = self._forward_no_grad(state.engine, control)
+        if self.soft:
+            return self._soft_state(engine)
         return SimState(joint_q=joint_q, joint_qd=joint_qd, engine=engine)
+
+    def _soft_state(self, engine: torch.Tensor) -> SimState:
+        """A particle state whose particle_q / particle_qd are views of ``engine`` (one gradient path)."""
+        n, half = self.num_envs, 3 * self.layout.num_particles
+        empty = engine.new_zeros(n, 0)
+        return SimState(
+            joint_q=empty,
+            joint_qd=empty.clone(),
+            engine=engine,
+            particle_q=engine[:, :half].reshape(n, -1, 3),
+            particle_qd=engine[:, half:].reshape(n, -1, 3),
+        )
+
+    def _control_tet_activation(self, control: torch.Tensor) -> torch.Tensor:
+        """TET_ACTIVATION: (N, T) activations, one per tet of each env's body."""
+        expected = (self.num_envs, self.layout.num_tets)
+        if tuple(control.shape) != expected:
+            raise BackendError(f"tet activations must have shape {expected}, got {tuple(control.shape)}")
+        return control
 
     def _control_joint_torque(self, control: torch.Tensor) -> torch.Tensor:
         """JOINT_TORQUE: generalized forces for every dof, zero on the free root, the control on the rest."""
@@ -379,8 +474,10 @@ class NewtonSim(BatchedSim):
 
     # -- generalized -> engine coordinates ------------------------------------------------
     def state_from_generalized(self, joint_q, joint_qd, particle_q=None, particle_qd=None) -> SimState:
-        if particle_q is not None or particle_qd is not None:
-            raise BackendError("particles are not supported by the newton adapter yet")
+        if self.soft:
+            n = self.num_envs
+            flat = (p.to(self.device, torch.float32).reshape(n, -1) for p in (particle_q, particle_qd))
+            return self._soft_state(torch.cat(tuple(flat), dim=1))
         joint_q = joint_q.to(self.device, torch.float32)
         joint_qd = joint_qd.to(self.device, torch.float32)
         if self.featherstone:  # generalized coordinates are the engine state (quaternion normalised, as FK does)
