@@ -507,8 +507,8 @@ def cmd_solver_probe(args) -> int:
     from harness.solver_probe import run_probe
 
     _validate_names(args.backend, args.task)
-    if args.task not in ("ant", "go2"):
-        raise BadInput(f"solver-probe has candidates for the tasks ant and go2, not {args.task!r}")
+    if args.task not in ("ant", "go2", "soft_jumper"):
+        raise BadInput(f"solver-probe has candidates for the tasks ant, go2 and soft_jumper, not {args.task!r}")
     run_probe(
         num_envs=args.num_envs,
         out=args.out,

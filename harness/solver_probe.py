@@ -1,13 +1,14 @@
 """``python -m harness solver-probe``: evidence for a task's Newton solver settings, written with provenance.
 
 ``--task ant`` (the default) runs the Ant probe of :mod:`backends.newton.solver_probe` (engine code fed
-the task's asset and physics). ``--task go2`` probes candidate settings through the adapter itself,
-each candidate a physics change plus adapter options (:data:`GO2_CANDIDATES`):
+the task's asset and physics). ``--task go2`` and ``--task soft_jumper`` probe candidate settings
+through the adapter itself, each candidate a physics change plus adapter options (:data:`CANDIDATES`):
 
 * forward stability: ``num_envs`` envs x ``steps`` control steps of uniform random actions in
-  (-1, 1) (no gradient): the first non-finite step if any, the trunk-height range, the largest
-  horizontal excursion;
-* standing: 8 envs x ``steps`` steps of zero actions, the lowest trunk height and smallest up_z;
+  (-1, 1) (no gradient): the first non-finite step if any, the height range of the body (trunk, or a
+  soft body's particle centroid), the largest horizontal excursion;
+* standing: 8 envs x ``steps`` steps of zero actions, the lowest body height and smallest up_z (or
+  lowest particle);
 * gradient: along the first ``windows`` windows of 32 random-action steps, the per-env norm of
   d(window reward)/d(first actions) (what ``grad-growth`` measures along a trained policy's
   trajectories), max and median; an exploding adjoint shows up as norms of 1e3 and far above.
@@ -32,6 +33,11 @@ GO2_CANDIDATES = [
     ("featherstone armature 0.01 32 substeps", {"armature": 0.01, "substeps": 32}, {"solver": "featherstone"}),
     ("featherstone armature 0.1 16 substeps (chosen)", {}, {"solver": "featherstone"}),
 ]
+#: the SoftJumper on Newton: the task's settings (semi-implicit, 80 substeps, kf 10)
+SOFT_JUMPER_CANDIDATES = [
+    ("semi_implicit 80 substeps kf 10 (chosen)", {}, {}),
+]
+CANDIDATES = {"go2": GO2_CANDIDATES, "soft_jumper": SOFT_JUMPER_CANDIDATES}
 
 
 def run_probe(
@@ -45,10 +51,10 @@ def run_probe(
     if backend != "newton":  # one solver there: only the standing check of the task's own settings
         results = [standing(backend, task, steps=steps, num_envs=num_envs)]
         print(json.dumps(results[0]), flush=True)
-    elif task == "go2":
+    elif task in CANDIDATES:
         results = []
-        for label, changes, options in GO2_CANDIDATES:
-            result = probe_go2_candidate(label, changes, options, num_envs=num_envs, steps=steps)
+        for label, changes, options in CANDIDATES[task]:
+            result = probe_candidate(task, label, changes, options, num_envs=num_envs, steps=steps)
             print(json.dumps(result), flush=True)
             results.append(result)
     else:
@@ -77,14 +83,22 @@ def standing(backend: str, task_name: str, steps: int = 1000, num_envs: int = 8,
     return {"backend": backend, "zero_actions": stand, "seconds": round(time.perf_counter() - start, 1)}
 
 
+def body_position(state) -> torch.Tensor:
+    """(N, 3) where each env's body is: the root of a floating base, else the centroid of the particles."""
+    if state.particle_q is not None:
+        return state.particle_q.mean(dim=1)
+    return state.root_pos
+
+
 def zero_action_stand(sim, steps: int) -> dict:
-    """Step ``sim`` under zero actions: the first non-finite step, or the lowest root height, its final
-    mean, the smallest up_z and how many envs the task counts as terminated at the end."""
+    """Step ``sim`` under zero actions: the first non-finite step, or the lowest body height (root, or
+    particle centroid of a soft body), its final mean, the smallest up_z (floating bases) or lowest
+    particle (soft bodies), and how many envs the task counts as terminated at the end."""
     from backends import NonFiniteStateError
     from simcore import up_z
 
     task, n = sim.task, sim.num_envs
-    low, up_min, failed_at = math.inf, math.inf, None
+    low, up_min, particle_min, failed_at = math.inf, math.inf, math.inf, None
     with torch.no_grad():
         for t in range(steps):
             try:
@@ -92,29 +106,44 @@ def zero_action_stand(sim, steps: int) -> dict:
             except NonFiniteStateError:
                 failed_at = t + 1
                 break
-            low = min(low, float(state.root_pos[:, 2].min()))
-            up_min = min(up_min, float(up_z(state.root_quat).min()))
+            low = min(low, float(body_position(state)[:, 2].min()))
+            if sim.layout.floating_base:
+                up_min = min(up_min, float(up_z(state.root_quat).min()))
+            if state.particle_q is not None:
+                particle_min = min(particle_min, float(state.particle_q[..., 2].min()))
     finished = failed_at is None
-    return {
+    result = {
         "num_envs": n,
         "steps": steps,
         "first_non_finite_step": failed_at,
         "trunk_height_min": low if finished else None,
-        "trunk_height_final_mean": float(state.root_pos[:, 2].mean()) if finished else None,
-        "up_z_min": up_min if finished else None,
+        "trunk_height_final_mean": float(body_position(state)[:, 2].mean()) if finished else None,
         "terminated_envs": int(task.terminated(state, None).sum()) if finished else None,
     }
+    if sim.layout.floating_base:
+        result["up_z_min"] = up_min if finished else None
+    if sim.layout.num_particles:
+        result["lowest_particle_z"] = particle_min if finished else None
+    return result
 
 
-def probe_go2_candidate(
-    label: str, changes: dict, options: dict, num_envs: int = 64, steps: int = 1000, windows: int = 3, seed: int = 0
+def probe_candidate(
+    task_name: str,
+    label: str,
+    changes: dict,
+    options: dict,
+    num_envs: int = 64,
+    steps: int = 1000,
+    windows: int = 3,
+    seed: int = 0,
 ) -> dict:
+    """One candidate setting of ``task_name`` on Newton: forward stability, standing, gradient norms."""
     from backends import NonFiniteStateError, make
-    from tasks.go2 import Go2
+    from tasks import make_task
     from tasks.rollout import rollout_reward
 
-    base = Go2()
-    task = Go2(dataclasses.replace(base.physics, **changes))
+    base = make_task(task_name)
+    task = type(base)(dataclasses.replace(base.physics, **changes))
     result = {"candidate": label, "physics_changes": changes, "adapter_options": options, "steps": steps}
     start = time.perf_counter()
 
@@ -125,7 +154,7 @@ def probe_go2_candidate(
     starts, recorded = [], []  # the first `windows` windows of 32 steps, replayed with grad below
     with torch.no_grad():
         for t in range(steps):
-            actions = 2.0 * torch.rand(num_envs, 12, generator=gen) - 1.0
+            actions = 2.0 * torch.rand(num_envs, task.action_dim, generator=gen) - 1.0
             if t < 32 * windows:
                 if t % 32 == 0:
                     starts.append(sim.state.detach())
@@ -136,9 +165,9 @@ def probe_go2_candidate(
             except NonFiniteStateError:
                 failed_at = t + 1
                 break
-            z = state.root_pos[:, 2]
-            low, high = min(low, float(z.min())), max(high, float(z.max()))
-            reach = max(reach, float(state.root_pos[:, :2].norm(dim=1).max()))
+            where = body_position(state)
+            low, high = min(low, float(where[:, 2].min())), max(high, float(where[:, 2].max()))
+            reach = max(reach, float(where[:, :2].norm(dim=1).max()))
     result["random_actions"] = {
         "num_envs": num_envs,
         "first_non_finite_step": failed_at,
