@@ -38,7 +38,7 @@ STATE_EPS = 1e-3
 
 #: above this many coordinates of one kind (a soft body's ~1,000 particle coordinates, hundreds of
 #: activations per step), central differences go along random directions instead of coordinates
-MAX_COORDINATES = 512
+MAX_COORDINATES = 128
 DIRECTIONS = 16
 
 
@@ -133,12 +133,17 @@ def gradcheck(
     seed: int = 0,
     start_height: float | None = None,
     action_scale: float = 0.5,
+    settle_steps: int = 0,
+    value_probe: bool = True,
 ) -> GradcheckResult:
     """Compare autograd and central-difference gradients of the rollout loss.
 
     ``start_height`` lifts the body so the whole rollout is in the air: a smooth, contact-free
     segment where finite differences are trustworthy (a floating base's root to that height; a
     soft body's lowest particle). ``None`` keeps the task's own initial state (contact included).
+    ``settle_steps`` > 0 first runs that many zero-action steps (no gradient) from the initial state
+    and checks the segment that follows: a robot in stance, a soft body resting on the ground.
+    ``value_probe=False`` drops the terminal-value stand-in (rewards only).
     """
     gen = torch.Generator().manual_seed(seed)
     parts = [p.clone() for p in sim.task.sample_initial_state(sim.num_envs, gen)]
@@ -149,6 +154,15 @@ def gradcheck(
             z = parts[2][..., 2]
             parts[2][..., 2] = z + (start_height - z.amin(dim=1, keepdim=True))
     parts = [p.to(sim.device) for p in parts]
+    if settle_steps:
+        with torch.no_grad():
+            state = sim.state_from_generalized(*parts)
+            for _ in range(settle_steps):
+                state = sim.advance(state, torch.zeros(sim.num_envs, sim.task.action_dim, device=sim.device))
+        parts = [state.joint_q, state.joint_qd]
+        if sim.layout.num_particles:
+            parts += [state.particle_q, state.particle_qd]
+        parts = [p.detach().clone() for p in parts]
     n, a_dim = sim.num_envs, sim.task.action_dim
     actions = action_scale * (2.0 * torch.rand(steps, n, a_dim, generator=gen) - 1.0)
     actions = actions.to(sim.device)
@@ -169,6 +183,7 @@ def gradcheck(
     # observation path too: a fixed random linear function of o_T stands in for it (for a soft body in
     # the air it is the only part of the loss that sees the activations: they move no centre of mass)
     probe = torch.randn(sim.task.obs_dim, generator=gen, dtype=torch.float64) / sim.task.obs_dim**0.5
+    probe = probe if value_probe else None
 
     def loss_of(state_flat: torch.Tensor, actions_flat: torch.Tensor) -> torch.Tensor:
         q, qd, *particles = unflatten_state(state_flat)

@@ -78,9 +78,9 @@ def test_seeding_and_determinism(adapter):
         with torch.no_grad():
             for _ in range(3):
                 sim.step(_actions(task, N, gen))
-        runs.append(sim.state.joint_q)
+        runs.append(sim.state.engine)
     assert torch.equal(runs[0], runs[1])
-    assert not torch.equal(_sim(adapter, seed=5).state.joint_q, _sim(adapter, seed=6).state.joint_q)
+    assert not torch.equal(_sim(adapter, seed=5).state.engine, _sim(adapter, seed=6).state.engine)
 
 
 def test_floating_base_velocities_are_world_frame(adapter):
@@ -116,12 +116,12 @@ def test_reset_touches_only_the_named_envs_and_cuts_only_their_graph(adapter):
     gen = torch.Generator().manual_seed(1)
     first = _actions(task, N, gen, grad=True)
     sim.step(first)
-    before = sim.state.joint_q.detach().clone()
+    before = sim.state.engine.detach().clone()
     sim.reset([1])
-    after = sim.state.joint_q.detach()
+    after = sim.state.engine.detach()
     assert torch.equal(after[[0, 2]], before[[0, 2]]) and not torch.equal(after[1], before[1])
     state = sim.step(_actions(task, N, gen))
-    (state.joint_q.sum() + state.joint_qd.sum()).backward()
+    state.engine.sum().backward()
     per_env = first.grad.abs().sum(dim=1)
     assert per_env[1] == 0 and per_env[0] > 0 and per_env[2] > 0
 
@@ -135,7 +135,7 @@ def test_window_cut_leaves_no_path(adapter):
     sim.cut_graph()
     after = _actions(task, N, gen, grad=True)
     state = sim.step(after)
-    g_before, g_after = torch.autograd.grad(state.joint_qd.sum(), (before, after), allow_unused=True)
+    g_before, g_after = torch.autograd.grad(state.engine.sum(), (before, after), allow_unused=True)
     assert g_before is None and g_after.abs().sum() > 0
 
 
@@ -144,7 +144,8 @@ def test_gradients_match_finite_differences_on_a_smooth_segment(adapter):
     per coordinate, i.e. ~250 control steps on the Go2, which a finite-difference adapter pays in full.
     Longer segments are checked per task: the Ant's tests (8 and 4 steps) and ``tox -e bench``."""
     sim = _sim(adapter, num_envs=2, seed=1)
-    height = adapter[1].airborne_height if sim.layout.floating_base else None
+    airborne = sim.layout.floating_base or sim.layout.num_particles  # a body that can be lifted off the ground
+    height = adapter[1].airborne_height if airborne else None
     result = gradcheck(sim, steps=2, seed=0, start_height=height)
     assert result.action_rel_error < DEFAULT_TOLERANCE, result
     assert result.state_rel_error < DEFAULT_TOLERANCE, result
@@ -153,9 +154,15 @@ def test_gradients_match_finite_differences_on_a_smooth_segment(adapter):
 def test_non_finite_simulation_is_reported_per_env(adapter):
     task = adapter[1]
     sim = _sim(adapter)
-    q, qd = task.sample_initial_state(N, torch.Generator().manual_seed(0))
-    qd[1] = float("inf")
-    sim.state = sim.state_from_generalized(q, qd)
+    parts = list(task.sample_initial_state(N, torch.Generator().manual_seed(0)))
+    if task.layout.num_particles:  # state_from_generalized refuses non-finite particles: poison the engine row
+        state = sim.state_from_generalized(*parts)
+        engine = state.engine.clone()
+        engine[1, -1] = float("inf")
+        sim.state = dataclasses.replace(state, engine=engine)
+    else:
+        parts[1][1] = float("inf")
+        sim.state = sim.state_from_generalized(*parts)
     with pytest.raises(NonFiniteStateError) as info, torch.no_grad():
         sim.step(torch.zeros(N, task.action_dim))
     assert info.value.env_ids == [1]
