@@ -48,7 +48,7 @@ def _window(sim: BatchedSim, horizon: int, grad: bool, gen: torch.Generator) -> 
     """Seconds for one window of ``horizon`` adapter steps, plus the backward pass if ``grad``.
 
     The loss touches every output of every step (all generalized coordinates), so the backward
-    pass runs each step's full adjoint, as a training loss would, but no task code is timed:
+    pass runs each step's full adjoint (particles included), as a training loss would, but no task code is timed:
     this measures the adapter, comparable with the bare engine rollout.
     """
     task = sim.task
@@ -61,6 +61,8 @@ def _window(sim: BatchedSim, horizon: int, grad: bool, gen: torch.Generator) -> 
         for a in params:
             state = sim.step(a)
             loss = loss + state.joint_q.sum() + state.joint_qd.sum()
+            if state.particle_q is not None:
+                loss = loss + state.particle_q.sum() + state.particle_qd.sum()
         loss.backward()
     else:
         with torch.no_grad():

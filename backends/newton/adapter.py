@@ -613,10 +613,11 @@ def bare_tape_rollout(sim: NewtonSim, horizon: int, repeats: int = 1, seed: int 
 
     The reference for the adapter's overhead: the same model, solver, contact pipeline, substeps
     and fresh state buffers per substep, one tape over the whole window, a loss on the final
-    body positions, ``tape.backward`` and ``tape.zero``. Position-target tasks run the same PD
-    kernel per substep as the adapter. Featherstone runs as raw Newton does, on the solver's own
-    system-matrix buffers (the adapter points the solver at per-frame copies instead, so that its
-    replay is exact; the arithmetic is the same). Returns the best of ``repeats``.
+    body positions (particle positions for a soft body), ``tape.backward`` and ``tape.zero``.
+    Position-target tasks run the same PD kernel per substep as the adapter. Featherstone runs as
+    raw Newton does, on the solver's own system-matrix buffers (the adapter points the solver at
+    per-frame copies instead, so that its replay is exact; the arithmetic is the same). Returns the
+    best of ``repeats``.
     """
     import time
 
@@ -634,6 +635,9 @@ def bare_tape_rollout(sim: NewtonSim, horizon: int, repeats: int = 1, seed: int 
             q = sim.state.dof_q(layout).detach().cpu().numpy()
             values = (q + rng.uniform(-0.25, 0.25, q.shape)).astype(np.float32).ravel()
             targets.append(wp.array(values, dtype=float, device=model.device, requires_grad=True))
+        elif sim.soft:  # activations as the SoftJumper's actions give them
+            activations = rng.uniform(-0.3, 0.3, sim.num_envs * layout.num_tets).astype(np.float32)
+            controls[t].tet_activations.assign(activations)
         else:
             f = np.zeros((sim.num_envs, layout.nv), dtype=np.float32)
             f[:, layout.nv - layout.num_dofs :] = rng.uniform(-100.0, 100.0, (sim.num_envs, layout.num_dofs))
@@ -656,13 +660,23 @@ def bare_tape_rollout(sim: NewtonSim, horizon: int, repeats: int = 1, seed: int 
                         sim.launch_pd(targets[t], pd_q, pd_qd, control.joint_f)
                     sim.solver.step(states[s], states[s + 1], control, contacts[t], phys.sim_dt)
         with tape:
-            wp.launch(_sum_positions, dim=model.body_count, inputs=[states[-1].body_q], outputs=[loss])
+            if sim.soft:
+                wp.launch(_sum_particles, dim=model.particle_count, inputs=[states[-1].particle_q], outputs=[loss])
+            else:
+                wp.launch(_sum_positions, dim=model.body_count, inputs=[states[-1].body_q], outputs=[loss])
         tape.backward(loss)
         tape.zero()
         loss.zero_()
         wp.synchronize_device(model.device)
         best = min(best, time.perf_counter() - start)
     return best
+
+
+@wp.kernel
+def _sum_particles(particle_q: wp.array[wp.vec3], loss: wp.array[float]):
+    i = wp.tid()
+    p = particle_q[i]
+    wp.atomic_add(loss, 0, p[0] + p[1] + p[2])
 
 
 @wp.kernel
