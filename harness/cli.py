@@ -55,6 +55,13 @@ def _int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
 
 
+def _nonnegative_int(text: str) -> int:
+    value = _int(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value}")
+    return value
+
+
 def _finite(text: str) -> float:
     try:
         value = float(text)
@@ -186,6 +193,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--with-contact",
         action="store_true",
         help="start from the task's own initial height (contact) instead of a contact-free segment in the air",
+    )
+    p.add_argument(
+        "--settle",
+        type=_nonnegative_int,
+        default=0,
+        help="with --with-contact: zero-action steps before the checked segment (a robot in stance, a body at rest)",
     )
 
     p = sub.add_parser("train", help="train an algorithm; writes config.json, metrics.jsonl, checkpoints")
@@ -331,8 +344,12 @@ def cmd_gradcheck(args) -> int:
     if not args.with_contact and lifted:
         start_height = sim.task.airborne_height  # high enough that `steps` of free fall never reach the ground
     segment = "with contact" if start_height is None else f"contact-free ({lifted} lifted to {start_height} m)"
+    if args.settle:
+        if start_height is not None:
+            raise BadInput("--settle needs --with-contact (settling in the air would only fall)")
+        segment += f", after {args.settle} zero-action steps"
     print(f"gradcheck {args.backend}/{args.task}: {args.num_envs} envs, {args.steps} steps, {segment}", flush=True)
-    result = gradcheck(sim, steps=args.steps, seed=args.seed, start_height=start_height)
+    result = gradcheck(sim, steps=args.steps, seed=args.seed, start_height=start_height, settle_steps=args.settle)
     for label, error, mode in (
         ("d loss / d actions:      ", result.action_rel_error, result.action_mode),
         ("d loss / d initial state:", result.state_rel_error, result.state_mode),
