@@ -291,6 +291,14 @@ def _resume_source(run_dir: Path) -> tuple[Path, dict] | None:
     return None
 
 
+def _duration(seconds: float) -> str:
+    """``seconds`` as s, min, h or days, whichever reads best."""
+    for unit, size in (("days", 86400.0), ("h", 3600.0), ("min", 60.0)):
+        if seconds >= 2 * size:
+            return f"{seconds / size:.1f} {unit}"
+    return f"{seconds:.1f} s"
+
+
 def _run(
     run_dir: Path,
     config: dict,
@@ -320,6 +328,19 @@ def _run(
         progress = _apply_checkpoint(payload, algo, env)
         _truncate_metrics(metrics_path, algo.epoch)
         print(f"resuming {run_dir} at epoch {algo.epoch}/{epochs} from {path.name}", file=stream, flush=True)
+    cost = env.sim.gradient_step_cost()
+    if cost is not None:  # finite-difference gradients: say what this run will cost before it starts
+        per_epoch = cost["seconds_per_step"] * algo_config.horizon
+        remaining = per_epoch * (epochs - algo.epoch)
+        print(
+            f"cost estimate ({backend}, measured on {cost['sample_worlds']} worlds in {cost['sample_seconds']:.1f} s): "
+            f"{_duration(cost['seconds_per_step'])} per control step with gradients "
+            f"({cost['worlds_per_step']} worlds), "
+            f"{_duration(per_epoch)} per epoch of {algo_config.horizon} steps, "
+            f"{_duration(remaining)} for the {epochs - algo.epoch} epochs to go (simulation only)",
+            file=stream,
+            flush=True,
+        )
     bar = _Progress(epochs, algo.epoch, stream)
     from backends.contract import NonFiniteStateError
 

@@ -104,6 +104,7 @@ import warp as wp
 
 from backends._warp import warp_device
 from backends.contract import BackendError, BatchedSim
+from backends.mujoco_warp.soft import SoftEnvModels
 from simcore import (
     ControlKind,
     SimState,
@@ -198,8 +199,11 @@ class MujocoWarpSim(BatchedSim):
     # -- construction ---------------------------------------------------------------------
     def _build(self) -> None:
         task = self.task
+        self.soft = task.control_kind == ControlKind.TET_ACTIVATION
+        if self.soft:
+            return self._build_soft()
         if task.layout.num_particles:
-            raise BackendError("the mujoco_warp adapter supports articulated tasks without particles only")
+            raise BackendError("the mujoco_warp adapter runs particles only as a soft body (tet activations)")
         self.fd_eps_state = float(self.options.get("fd_eps_state", 1e-2))
         self.position_control = task.control_kind == ControlKind.JOINT_POSITION_TARGET
         # 1 N m of torque, or 1e-2 rad of PD target (x kp = 0.3 N m on the Go2); module docstring
@@ -233,6 +237,37 @@ class MujocoWarpSim(BatchedSim):
 
         # central-difference step of every tangent coordinate: 2 nv state coordinates, then the torques
         eps = [self.fd_eps_state] * (2 * layout.nv) + [self.fd_eps_control] * layout.num_dofs
+        self._fd_steps = torch.tensor(eps, dtype=torch.float64, device=self.device)
+
+    def _build_soft(self) -> None:
+        """Soft bodies (:mod:`backends.mujoco_warp.soft`): one compiled flex model per env (each env's
+        body has its own size), finite differences env by env in chunks of ``fd_chunk_worlds`` worlds."""
+        task, layout = self.task, self.task.layout
+        body = task.soft_body
+        if body is None:
+            raise BackendError(f"task {task.name!r} asks for tet activations but defines no soft_body")
+        if (body.num_particles, body.num_tets) != (layout.num_particles, layout.num_tets):
+            raise BackendError(
+                f"soft body has {body.num_particles} particles and {body.num_tets} tets, task {task.name!r} "
+                f"expects {layout.num_particles} and {layout.num_tets}"
+            )
+        self.position_control = False
+        self.fd_eps_state = float(self.options.get("fd_eps_state", 1e-3))
+        self.fd_eps_control = float(self.options.get("fd_eps_control", 1e-2))
+        self.fd_chunk_worlds = int(self.options.get("fd_chunk_worlds", 256))
+        self.nconmax = int(self.options.get("nconmax", 128))
+        self.njmax = int(self.options.get("njmax", 512))
+        if not (self.fd_eps_state > 0 and self.fd_eps_control > 0):
+            raise ValueError("fd_eps_state and fd_eps_control must be positive")
+        if self.fd_chunk_worlds < 1 or self.nconmax < 1 or self.njmax < 1:
+            raise ValueError("fd_chunk_worlds, nconmax and njmax must be >= 1")
+        self.wp_device = warp_device(self.device)
+        self.soft_models = SoftEnvModels(task, self.num_envs, self.wp_device, self.device, self.nconmax, self.njmax)
+        if self.soft_models.mjm[0].nv != 3 * layout.num_particles:
+            raise BackendError(f"flex model has nv={self.soft_models.mjm[0].nv}, expected {3 * layout.num_particles}")
+        self._com_offset = None
+        dofs = 3 * layout.num_particles
+        eps = [self.fd_eps_state] * (2 * dofs) + [self.fd_eps_control] * layout.num_tets
         self._fd_steps = torch.tensor(eps, dtype=torch.float64, device=self.device)
 
     @property
@@ -295,6 +330,13 @@ class MujocoWarpSim(BatchedSim):
             raise BackendError(f"control must have shape {expected}, got {tuple(control.shape)}")
         return control.to(self.device, torch.float32)
 
+    def _control_tet_activation(self, control: torch.Tensor) -> torch.Tensor:
+        """TET_ACTIVATION: (N, T) activations, applied as nodal forces every substep (module ``soft``)."""
+        expected = (self.num_envs, self.layout.num_tets)
+        if tuple(control.shape) != expected:
+            raise BackendError(f"tet activations must have shape {expected}, got {tuple(control.shape)}")
+        return control.to(self.device, torch.float32)
+
     def _control_joint_position_target(self, control: torch.Tensor) -> torch.Tensor:
         """JOINT_POSITION_TARGET: the (N, J) targets; the PD torque is evaluated per substep in :meth:`_run_worlds`."""
         return self._control_joint_torque(control)
@@ -303,10 +345,71 @@ class MujocoWarpSim(BatchedSim):
         control = self.engine_control(control)
         if torch.is_grad_enabled() and (state.engine.requires_grad or control.requires_grad):
             engine = _MujocoWarpStep.apply(self, state.engine, control)
+        elif self.soft:
+            engine = self._run_soft_envs(state.engine.detach(), control.detach())
         else:
             qpos, qvel = self._split(state.engine.detach())
             engine = self._run_worlds(qpos, qvel, control.detach())
         return self._state_from_engine(engine)
+
+    def gradient_step_cost(self, sample_worlds: int | None = None) -> dict:
+        """Time one control step of ``sample_worlds`` copies of env 0 (after a warm-up step, which
+        compiles kernels) and scale it to the ``worlds_per_env_with_grad * num_envs`` worlds of a step
+        with gradients. Default sample: the whole batch up to 256 worlds for articulated tasks (a
+        fraction of a second), 16 worlds for a soft body (~0.5 s per world on this CPU). Per-world
+        cost falls as batches grow while the CPU is launch-bound, so a partial sample over-estimates."""
+        import time
+
+        worlds = self.worlds_per_env_with_grad * self.num_envs
+        sample_worlds = sample_worlds or min(worlds, 16 if self.soft else 256)
+        engine = self.state.engine.detach()
+        width = self.layout.num_tets if self.soft else self.layout.num_dofs
+        control = torch.zeros(sample_worlds, width, device=self.device)
+        rows = engine[:1].repeat(sample_worlds, 1)
+        half = engine.shape[1] // 2 if self.soft else self.layout.nq
+
+        def run() -> float:
+            start = time.perf_counter()
+            if self.soft:
+                self.soft_models.run(0, rows[:, :half], rows[:, half:], control)
+            else:
+                self._run_worlds(rows[:, :half], rows[:, half:], control)
+            return time.perf_counter() - start
+
+        run()
+        seconds = run()
+        return {
+            "seconds_per_step": seconds / sample_worlds * worlds,
+            "worlds_per_step": worlds,
+            "sample_worlds": sample_worlds,
+            "sample_seconds": seconds,
+        }
+
+    def _run_soft_envs(self, engine: torch.Tensor, control: torch.Tensor) -> torch.Tensor:
+        """One control step of every env's soft body (each on its own model), no gradient."""
+        half = engine.shape[1] // 2
+        rows = [
+            self.soft_models.run(e, engine[e : e + 1, :half], engine[e : e + 1, half:], control[e : e + 1])
+            for e in range(self.num_envs)
+        ]
+        return torch.cat(rows)
+
+    def _soft_fd_jacobians(self, engine: torch.Tensor, control: torch.Tensor):
+        """:meth:`fd_jacobians` for soft bodies: env by env, perturbations in chunks of fd_chunk_worlds."""
+        steps = self._fd_steps
+        num_coords = steps.numel()
+        half = engine.shape[1] // 2
+        deltas = torch.cat((steps.new_zeros(1, num_coords), torch.diag(steps), -torch.diag(steps)))
+        outputs, jac = [], []
+        for e in range(engine.shape[0]):
+            x = torch.cat((engine[e], control[e])).unsqueeze(0) + deltas  # (K, 2 dofs + T), all additive
+            chunks = torch.split(x.float(), self.fd_chunk_worlds)
+            run = self.soft_models.run
+            y = torch.cat([run(e, c[:, :half], c[:, half : 2 * half], c[:, 2 * half :]) for c in chunks]).double()
+            outputs.append(y[0].float())
+            jac.append(((y[1 : 1 + num_coords] - y[1 + num_coords :]) / (2.0 * steps[:, None])).T)  # (D, P)
+        jac = torch.stack(jac)
+        return torch.stack(outputs), jac[:, :, : 2 * half].contiguous(), jac[:, :, 2 * half :].contiguous()
 
     def fd_jacobians(
         self, engine: torch.Tensor, control: torch.Tensor
@@ -319,6 +422,8 @@ class MujocoWarpSim(BatchedSim):
         """
         engine = engine.detach().to(self.device, torch.float64)
         control = control.detach().to(self.device, torch.float64)
+        if self.soft:
+            return self._soft_fd_jacobians(engine, control)
         steps = self._fd_steps
         num_coords = steps.numel()
         # row 0: nominal; rows 1..P: +eps e_i; rows P+1..2P: -eps e_i (P tangent coordinates)
@@ -381,6 +486,11 @@ class MujocoWarpSim(BatchedSim):
 
     # -- engine <-> backend-neutral coordinates ---------------------------------------------
     def _state_from_engine(self, engine: torch.Tensor) -> SimState:
+        if self.soft:  # qpos: displacements from each env's rest shape; particle views in torch
+            n, half = engine.shape[0], engine.shape[1] // 2
+            empty = engine.new_zeros(n, 0)
+            particle_q = self.soft_models.rest + engine[:, :half].reshape(n, -1, 3)
+            return SimState(empty, empty.clone(), engine, particle_q, engine[:, half:].reshape(n, -1, 3))
         if not self.layout.floating_base:
             return SimState(joint_q=engine[:, : self.layout.nq], joint_qd=engine[:, self.layout.nq :], engine=engine)
         joint_q, joint_qd = engine_to_generalized(engine, self._com_offset)
@@ -388,6 +498,11 @@ class MujocoWarpSim(BatchedSim):
 
     def state_from_generalized(self, joint_q, joint_qd, particle_q=None, particle_qd=None) -> SimState:
         """The engine state of generalized coordinates (root quaternion normalised); differentiable."""
+        if self.soft:
+            n = self.num_envs
+            displacement = particle_q.to(self.device, torch.float32) - self.soft_models.rest
+            velocity = particle_qd.to(self.device, torch.float32)
+            return self._state_from_engine(torch.cat((displacement.reshape(n, -1), velocity.reshape(n, -1)), dim=1))
         if particle_q is not None or particle_qd is not None:
             raise BackendError("particles are not supported by the mujoco_warp adapter")
         joint_q = joint_q.to(self.device, torch.float32)
