@@ -223,7 +223,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--variant", action="append", default=None, help="physics changes, e.g. contact_kf=300")
     _add(p, "grad-growth", "windows", "out")
 
-    p = sub.add_parser("crosscheck", help="compare backends' gradients of the same loss, start and actions")
+    p = sub.add_parser(
+        "crosscheck",
+        help="compare backends' gradients of the same loss, start and actions (soft bodies: forward COM paths)",
+    )
     _add(p, "crosscheck", "task", "backends", "num_envs", "steps", "seed", "out", required=("task", "backends"))
 
     p = sub.add_parser("throughput", help="env-steps/s forward-only and forward+backward, and the bare engine")
@@ -505,7 +508,7 @@ def cmd_grad_growth(args) -> int:
 def cmd_crosscheck(args) -> int:
     import json
 
-    from harness.crosscheck import crosscheck
+    from harness.crosscheck import crosscheck, forward_crosscheck
     from harness.results import provenance, write_json
 
     _validate_names(task=args.task)
@@ -513,8 +516,14 @@ def cmd_crosscheck(args) -> int:
         _validate_names(backend=name)
     if args.out:
         _check_output_file(args.out)
-    report = crosscheck(args.task, args.backends, num_envs=args.num_envs, steps=args.steps, seed=args.seed)
-    print(json.dumps(report["segments"], indent=2))
+    from tasks import task_class
+
+    if task_class(args.task).layout.num_particles:  # soft bodies: forward rollouts (module docstring)
+        report = forward_crosscheck(args.task, args.backends, num_envs=args.num_envs, steps=args.steps, seed=args.seed)
+        print(json.dumps(report["pairs"], indent=2))
+    else:
+        report = crosscheck(args.task, args.backends, num_envs=args.num_envs, steps=args.steps, seed=args.seed)
+        print(json.dumps(report["segments"], indent=2))
     if args.out:
         print(f"wrote {write_json(args.out, {**report, 'provenance': provenance()})}")
     return 0
