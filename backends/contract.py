@@ -179,10 +179,11 @@ class BatchedSim(ABC):
         alone (no torch, no adapter); ``None`` where the adapter has no such reference."""
         return None
 
-    def gradient_step_cost(self) -> dict | None:
+    def gradient_step_cost(self, sample_worlds: int | None = None) -> dict | None:
         """A measured estimate of one control step with gradients for all envs, for adapters whose
         gradients are expensive enough to plan around (finite differences): ``seconds_per_step`` and
-        how it was measured. ``None`` where a step with gradients costs a few forward steps."""
+        how it was measured (on ``sample_worlds`` worlds, or the adapter's default). ``None`` where a
+        step with gradients costs a few forward steps."""
         return None
 
     # -- adapter hooks --------------------------------------------------------------------

@@ -243,6 +243,13 @@ def build_parser() -> argparse.ArgumentParser:
         "out",
         required=("backend", "task"),
     )
+    p.add_argument(
+        "--grad-cost-only",
+        type=_positive_int,
+        metavar="WORLDS",
+        help="finite-difference adapters whose timed windows are out of reach (MuJoCo-Warp soft bodies): time one "
+        "control step of WORLDS worlds and scale it to a step with gradients (forward-only windows still timed)",
+    )
 
     p = sub.add_parser("solver-probe", help="Newton solver/contact settings: forward stability and gradient size")
     _add(p, "solver-probe", "backend", "task", "num_envs", "max_steps", "out")
@@ -373,6 +380,8 @@ def cmd_throughput(args) -> int:
         _check_output_file(args.out)
     sim = _make_sim(args, horizon=args.horizon)
     print(f"throughput {args.backend}/{args.task}: {args.num_envs} envs, windows of {args.horizon} steps", flush=True)
+    if args.grad_cost_only:
+        return _grad_cost_only(sim, args)
     result = measure(sim, horizon=args.horizon, windows=args.windows, seed=args.seed)
     print(f"  forward only:        {result.forward_steps_per_s:10.0f} env-steps/s")
     print(f"  forward + backward:  {result.forward_backward_steps_per_s:10.0f} env-steps/s")
@@ -383,6 +392,36 @@ def cmd_throughput(args) -> int:
     if args.out:
         path = write_json(args.out, {"result": result.as_dict(), "provenance": provenance()})
         print(f"wrote {path}")
+    return 0
+
+
+def _grad_cost_only(sim, args) -> int:
+    """``throughput --grad-cost-only WORLDS``: forward windows as usual, the step with gradients estimated."""
+    from harness.results import provenance, write_json
+    from harness.throughput import forward_rate
+
+    cost = sim.gradient_step_cost(args.grad_cost_only)
+    if cost is None:
+        raise BadInput(f"--grad-cost-only: the {args.backend} adapter has no finite-difference cost to estimate")
+    forward = forward_rate(sim, horizon=args.horizon, windows=args.windows, seed=args.seed)
+    with_grad = args.num_envs / cost["seconds_per_step"]
+    print(f"  forward only:        {forward:10.1f} env-steps/s")
+    print(
+        f"  forward + backward:  {with_grad:10.4f} env-steps/s (estimated: {cost['worlds_per_step']} worlds per step, "
+        f"{cost['sample_worlds']} worlds timed in {cost['sample_seconds']:.1f} s)"
+    )
+    if args.out:
+        result = {
+            "backend": args.backend,
+            "task": args.task,
+            "num_envs": args.num_envs,
+            "horizon": args.horizon,
+            "windows": args.windows,
+            "forward_steps_per_s": forward,
+            "forward_backward_steps_per_s_estimated": with_grad,
+            "gradient_step_cost": cost,
+        }
+        print(f"wrote {write_json(args.out, {'result': result, 'provenance': provenance()})}")
     return 0
 
 

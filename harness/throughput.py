@@ -73,6 +73,13 @@ def _window(sim: BatchedSim, horizon: int, grad: bool, gen: torch.Generator) -> 
     return elapsed
 
 
+def forward_rate(sim: BatchedSim, horizon: int = 32, windows: int = 3, seed: int = 0) -> float:
+    """Best-of-``windows`` forward-only env-steps/s after a warm-up window."""
+    gen = torch.Generator().manual_seed(seed)
+    _window(sim, horizon, False, gen)
+    return sim.num_envs * horizon / min(_window(sim, horizon, False, gen) for _ in range(windows))
+
+
 def measure(sim: BatchedSim, horizon: int = 32, windows: int = 5, seed: int = 0) -> ThroughputResult:
     """Best-of-``windows`` rates after one warm-up window each (Warp compiles on first use).
 
