@@ -229,15 +229,12 @@ def test_8_envs_200_random_steps_stay_finite_and_in_a_sane_box(ant):
 
 
 # -- (e) refusals ------------------------------------------------------------------------------
-def test_unsupported_controls_and_particles_are_refused(sim, ant):
-    class PositionTargetAnt(type(ant)):
+def test_activations_without_a_soft_body_and_particles_on_the_ant_are_refused(sim, ant):
+    class ActivatedAnt(type(ant)):
         control_kind = ControlKind.TET_ACTIVATION
 
-    with pytest.raises(
-        BackendError,
-        match="supports control kinds joint_torque, joint_position_target; task .ant. needs tet_activation",
-    ):
-        make("mujoco_warp", PositionTargetAnt(), num_envs=1)
+    with pytest.raises(BackendError, match="task 'ant' asks for tet activations but defines no soft_body"):
+        make("mujoco_warp", ActivatedAnt(), num_envs=1)
     q, qd = ant.default_state()
     with pytest.raises(BackendError, match="particles"):
         n = sim.num_envs
