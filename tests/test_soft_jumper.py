@@ -307,3 +307,18 @@ def test_mujoco_warp_soft_body_jacobians_and_their_autograd_wiring():
     (out.double() * weights).sum().backward()
     assert torch.allclose(engine.grad.double(), weights[0] @ jac_state[0], rtol=1e-5, atol=1e-6)
     assert torch.allclose(act_var.grad.double(), weights[0] @ jac_act[0], rtol=1e-5, atol=1e-6)
+
+
+def test_forward_crosscheck_reports_com_paths_of_both_engines(monkeypatch):
+    """``crosscheck`` on a soft body: the same start and actions on both engines (a 27-particle body,
+    3 steps), COM paths from the same point, their distance growing from zero."""
+    pytest.importorskip("mujoco_warp")
+    import tasks
+    from harness.crosscheck import forward_crosscheck
+
+    monkeypatch.setitem(tasks.REGISTRY._runtime, "tiny_jumper", TinyJumper)  # registered for this test only
+    report = forward_crosscheck("tiny_jumper", ["newton", "mujoco_warp"], num_envs=1, steps=3, seed=0)
+    pair = report["pairs"]["newton vs mujoco_warp"]
+    assert len(report["com"]["newton"]) == len(report["com"]["mujoco_warp"]) == 4
+    assert pair["com_distance_by_step"][0] == pytest.approx(0.0, abs=1e-6)
+    assert 0.0 < pair["com_distance_max"] < 0.05
