@@ -105,6 +105,7 @@ import warp as wp
 from backends._warp import warp_device
 from backends.contract import BackendError, BatchedSim
 from backends.mujoco_warp.soft import SoftEnvModels
+from backends.mujoco_warp.stepping import run_substeps
 from simcore import (
     ControlKind,
     SimState,
@@ -304,21 +305,13 @@ class MujocoWarpSim(BatchedSim):
         view["time"].zero_()
         view["overflow"].zero_()
         phys = self.task.physics
-        with wp.ScopedDevice(self.wp_device):
-            for _ in range(phys.substeps):
-                if self.position_control:  # the PD law on this substep's state, as Newton's adapter does
-                    wp.synchronize_device(self.wp_device)
-                    hinges = view["qpos"][:, self.layout.nq - self.layout.num_dofs :]
-                    tau = phys.pd_torque(torque, hinges, view["qvel"][:, root:])
-                    view["qfrc_applied"][:, root:] = tau
-                mjw.step(self.model, data)
-            wp.synchronize_device(self.wp_device)
-        if bool(view["overflow"].any()):
-            raise BackendError(
-                f"mujoco_warp ran out of contact or constraint buffers (nconmax={self.nconmax}, "
-                f"njmax={self.njmax}); raise the nconmax / njmax options"
-            )
-        return torch.cat((view["qpos"], view["qvel"]), dim=1).clone()
+
+        def pd_law() -> None:  # on this substep's state, as Newton's adapter does
+            hinges = view["qpos"][:, self.layout.nq - self.layout.num_dofs :]
+            view["qfrc_applied"][:, root:] = phys.pd_torque(torque, hinges, view["qvel"][:, root:])
+
+        hook = pd_law if self.position_control else None
+        return run_substeps(self.model, data, view, phys.substeps, self.wp_device, hook, (self.nconmax, self.njmax))
 
     def _split(self, engine: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return engine[:, : self.layout.nq], engine[:, self.layout.nq :]

@@ -32,6 +32,7 @@ import mujoco_warp as mjw
 import torch
 import warp as wp
 
+from backends.mujoco_warp.stepping import run_substeps
 from simcore import SoftBodySpec, activation_nodal_forces
 
 
@@ -110,8 +111,6 @@ class SoftEnvModels:
     def run(self, env: int, qpos: torch.Tensor, qvel: torch.Tensor, activation: torch.Tensor) -> torch.Tensor:
         """One control step of ``W`` worlds of env ``env``: displacements (W, 3P), velocities (W, 3P) and
         tet activations (W, T) -> next engine rows (W, 6P); nodal activation forces every substep."""
-        from backends.contract import BackendError
-
         data, view = self._data_for(env, qpos.shape[0])
         view["qpos"].copy_(qpos)
         view["qvel"].copy_(qvel)
@@ -120,17 +119,12 @@ class SoftEnvModels:
         view["overflow"].zero_()
         rest = self.rest[env].unsqueeze(0)
         k_lambda = self.task.soft_body.k_lambda
-        with wp.ScopedDevice(self.wp_device):
-            for _ in range(self.task.physics.substeps):
-                wp.synchronize_device(self.wp_device)
-                positions = rest + view["qpos"].reshape(qpos.shape[0], -1, 3)
-                forces = activation_nodal_forces(positions, self.tets, activation, k_lambda)
-                view["qfrc_applied"].copy_(forces.reshape(qpos.shape[0], -1))
-                mjw.step(self.models[env], data)
-            wp.synchronize_device(self.wp_device)
-        if bool(view["overflow"].any()):
-            raise BackendError(
-                f"mujoco_warp ran out of contact or constraint buffers (nconmax={self.nconmax}, "
-                f"njmax={self.njmax}); raise the nconmax / njmax options"
-            )
-        return torch.cat((view["qpos"], view["qvel"]), dim=1).clone()
+
+        def activation_forces() -> None:
+            positions = rest + view["qpos"].reshape(qpos.shape[0], -1, 3)
+            forces = activation_nodal_forces(positions, self.tets, activation, k_lambda)
+            view["qfrc_applied"].copy_(forces.reshape(qpos.shape[0], -1))
+
+        substeps = self.task.physics.substeps
+        buffers = (self.nconmax, self.njmax)
+        return run_substeps(self.models[env], data, view, substeps, self.wp_device, activation_forces, buffers)
