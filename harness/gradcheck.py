@@ -115,11 +115,13 @@ def _rel_error(autograd: torch.Tensor, fd: torch.Tensor) -> float:
     return float(err.max())
 
 
-def _check_kind(fn, x: torch.Tensor, grad: torch.Tensor, eps: float, gen: torch.Generator) -> tuple[float, str]:
+def _check_kind(
+    fn, x: torch.Tensor, grad: torch.Tensor, eps: float, gen: torch.Generator, max_coordinates: int = MAX_COORDINATES
+) -> tuple[float, str]:
     """Relative error of ``grad`` (N, D) against central differences of ``fn`` at ``x`` (N, D):
     per coordinate up to MAX_COORDINATES, else along DIRECTIONS random +-1 directions (the same
     comparison of directional derivatives ``grad . d`` that a broken gradient fails just as surely)."""
-    if x.shape[1] <= MAX_COORDINATES:
+    if x.shape[1] <= max_coordinates:
         return _rel_error(grad, _fd_per_env(fn, x, eps)), "coordinates"
     signs = torch.randint(0, 2, (DIRECTIONS, *x.shape), generator=gen).to(x) * 2.0 - 1.0
     fd = _fd_directional(fn, x, eps, signs)
@@ -135,6 +137,7 @@ def gradcheck(
     action_scale: float = 0.5,
     settle_steps: int = 0,
     value_probe: bool = True,
+    max_coordinates: int = MAX_COORDINATES,
 ) -> GradcheckResult:
     """Compare autograd and central-difference gradients of the rollout loss.
 
@@ -143,7 +146,8 @@ def gradcheck(
     soft body's lowest particle). ``None`` keeps the task's own initial state (contact included).
     ``settle_steps`` > 0 first runs that many zero-action steps (no gradient) from the initial state
     and checks the segment that follows: a robot in stance, a soft body resting on the ground.
-    ``value_probe=False`` drops the terminal-value stand-in (rewards only).
+    ``value_probe=False`` drops the terminal-value stand-in (rewards only). Blocks wider than
+    ``max_coordinates`` are checked along random directions (0: always).
     """
     gen = torch.Generator().manual_seed(seed)
     parts = [p.clone() for p in sim.task.sample_initial_state(sim.num_envs, gen)]
@@ -196,8 +200,12 @@ def gradcheck(
     # a missing gradient (no autograd path at all) counts as zero, i.e. 100% error
     g_state = s_var.grad if s_var.grad is not None else torch.zeros_like(s_var)
     g_actions = a_var.grad if a_var.grad is not None else torch.zeros_like(a_var)
-    action_err, action_mode = _check_kind(lambda a: loss_of(state0, a), flat_actions, g_actions, ACTION_EPS, gen)
-    state_err, state_mode = _check_kind(lambda s: loss_of(s, flat_actions), state0, g_state, STATE_EPS, gen)
+    action_err, action_mode = _check_kind(
+        lambda a: loss_of(state0, a), flat_actions, g_actions, ACTION_EPS, gen, max_coordinates
+    )
+    state_err, state_mode = _check_kind(
+        lambda s: loss_of(s, flat_actions), state0, g_state, STATE_EPS, gen, max_coordinates
+    )
     return GradcheckResult(
         action_rel_error=action_err,
         state_rel_error=state_err,
