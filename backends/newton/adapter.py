@@ -4,7 +4,10 @@ Solvers (option ``solver``): :class:`newton.solvers.SolverSemiImplicit` by defau
 in maximal coordinates with penalty joints and penalty contacts; README "Newton solver choice": on the
 Ant its gradients are finite and match finite differences), or :class:`newton.solvers.SolverFeatherstone`
 (generalized coordinates; the Go2 selects it through its ``backend_options``, because the
-semi-implicit solver goes non-finite on it in the first step: README "Go2 on Newton").
+semi-implicit solver goes non-finite on it in the first step: README "Go2 on Newton"). Soft bodies
+(``TET_ACTIVATION`` tasks, the SoftJumper) are particles and Neo-Hookean tets on the semi-implicit
+solver, one body per env scaled to the env's size (``SoftBodySpec``), activations written to
+``control.tet_activations``; particle-particle contact is off.
 
 How gradients stay exact:
 
@@ -87,7 +90,7 @@ class NewtonSim(BatchedSim):
 
     Engine state per env: ``[body_q, body_qd]`` of every body (maximal coordinates) for the
     semi-implicit solver; ``[joint_q, joint_qd]`` (generalized coordinates, the neutral layout
-    itself) for Featherstone, whose state they are.
+    itself) for Featherstone, whose state they are; ``[particle_q, particle_qd]`` for a soft body.
     """
 
     name = "newton"
