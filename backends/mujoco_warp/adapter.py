@@ -83,6 +83,13 @@ Gradients (:meth:`MujocoWarpSim.fd_jacobians`, :class:`_MujocoWarpStep`):
   ~0.15 s for 2 envs and 2 to 2.7 s for 64 envs (4672 worlds). ``fd_chunk_envs`` (default: all envs)
   bounds how many envs share one batch, i.e. memory, without changing the result.
 
+Soft bodies (``TET_ACTIVATION``, the SoftJumper; :mod:`backends.mujoco_warp.soft`): the tet mesh as a
+``dim = 3`` flex, one compiled model per env (each env's body has its own size), engine state
+``[qpos, qvel]`` = vertex displacements from rest and velocities, activations as nodal forces every
+substep. Finite differences perturb all ``2 * 3P + T`` coordinates additively (3109 worlds per env
+for the SoftJumper), env by env, in chunks of ``fd_chunk_worlds``; state step 1e-3 m, activation
+step 1e-2.
+
 Contacts make a control step non-smooth. With MuJoCo's soft contacts, the constraint's damping
 term acts from the first substep in which a geom penetrates, so the next state jumps whenever the
 touchdown moves to another substep: along the approach direction about every ``v * sim_dt``
@@ -190,8 +197,9 @@ class MujocoWarpSim(BatchedSim):
     32) contacts and ``njmax`` (default 160) constraint rows per world (the Ant's 13 geoms on the plane
     make at most 25 contacts, 4 rows each in the pyramidal cone, plus 8 joint-limit rows; an overflow
     raises :class:`BackendError`). The contract's ``max_graph_steps`` is not needed: the Jacobians
-    live in the autograd graph, so there is no buffer ring to size. Control kinds: joint torques and
-    joint position targets (the PD law per substep).
+    live in the autograd graph, so there is no buffer ring to size. Control kinds: joint torques,
+    joint position targets (the PD law per substep) and tet activations (soft bodies: options
+    ``fd_chunk_worlds``, default 256, and ``nconmax`` 128 / ``njmax`` 512 per world).
     """
 
     name = "mujoco_warp"
