@@ -156,6 +156,20 @@ class BatchedSim(ABC):
                 f"{len(limits)} torque limits for {self.layout.num_dofs} joints of task {self.task.name!r}"
             )
 
+    def checked_soft_body(self):
+        """TET_ACTIVATION tasks: the task's ``SoftBodySpec``, refused in one line if it is missing or
+        does not match the task's layout."""
+        task, layout = self.task, self.task.layout
+        body = getattr(task, "soft_body", None)
+        if body is None:
+            raise BackendError(f"task {task.name!r} asks for tet activations but defines no soft_body")
+        if (body.num_particles, body.num_tets) != (layout.num_particles, layout.num_tets):
+            raise BackendError(
+                f"soft body has {body.num_particles} particles and {body.num_tets} tets, task {task.name!r} "
+                f"expects {layout.num_particles} and {layout.num_tets}"
+            )
+        return body
+
     @classmethod
     def supported_control_kinds(cls) -> list[ControlKind]:
         """The kinds this adapter has a ``_control_<kind>`` method for."""

@@ -252,14 +252,7 @@ class MujocoWarpSim(BatchedSim):
         """Soft bodies (:mod:`backends.mujoco_warp.soft`): one compiled flex model per env (each env's
         body has its own size), finite differences env by env in chunks of ``fd_chunk_worlds`` worlds."""
         task, layout = self.task, self.task.layout
-        body = task.soft_body
-        if body is None:
-            raise BackendError(f"task {task.name!r} asks for tet activations but defines no soft_body")
-        if (body.num_particles, body.num_tets) != (layout.num_particles, layout.num_tets):
-            raise BackendError(
-                f"soft body has {body.num_particles} particles and {body.num_tets} tets, task {task.name!r} "
-                f"expects {layout.num_particles} and {layout.num_tets}"
-            )
+        self.checked_soft_body()
         self.position_control = False
         self.fd_eps_state = float(self.options.get("fd_eps_state", 1e-3))
         self.fd_eps_control = float(self.options.get("fd_eps_control", 1e-2))

@@ -176,15 +176,7 @@ class NewtonSim(BatchedSim):
     def _soft_builder(self) -> newton.ModelBuilder:
         """One soft body per env: the task's tet mesh scaled by the env's size factor, its particles
         carrying a quarter of each incident tet's mass (``SoftBodySpec``), one FEM element per tet."""
-        task, phys, body = self.task, self.task.physics, self.task.soft_body
-        if body is None:
-            raise BackendError(f"task {task.name!r} asks for tet activations but defines no soft_body")
-        layout = task.layout
-        if (body.num_particles, body.num_tets) != (layout.num_particles, layout.num_tets):
-            raise BackendError(
-                f"soft body has {body.num_particles} particles and {body.num_tets} tets, task {task.name!r} "
-                f"expects {layout.num_particles} and {layout.num_tets}"
-            )
+        phys, body = self.task.physics, self.checked_soft_body()
         builder = newton.ModelBuilder(gravity=(0.0, 0.0, phys.gravity))
         masses = body.particle_masses()
         tets = body.tets.tolist()
