@@ -188,9 +188,11 @@ class BatchedSim(ABC):
             )
         return getattr(self, f"_control_{self.task.control_kind.value}")(control)
 
-    def bare_engine_rollout(self, horizon: int) -> float | None:
-        """Seconds for one forward+backward window of ``horizon`` steps of the same model on the engine
-        alone (no torch, no adapter); ``None`` where the adapter has no such reference."""
+    def bare_engine_rollout(self, horizon: int, grad: bool = True) -> float | None:
+        """Seconds for one window of ``horizon`` steps of the same model on the engine alone (no torch,
+        no adapter): with ``grad``, the engine's work for a step with gradients (a tape's forward and
+        backward; the perturbed worlds of finite differences), else forward only. ``None`` where the
+        adapter has no such reference."""
         return None
 
     def gradient_step_cost(self, sample_worlds: int | None = None) -> dict | None:

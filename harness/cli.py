@@ -127,6 +127,8 @@ VERB_DEFAULTS: dict[str, dict] = {
     "sweep": {"num_envs": 64, "horizon": 32},
     "grad-growth": {"windows": 3},
     "solver-probe": {"num_envs": 64, "task": "ant", "max_steps": 1000, "backend": "newton"},
+    "fd-schemes": {"num_envs": 8, "windows": 3},
+    "scaling": {"horizon": 8, "windows": 3},
 }
 
 
@@ -250,6 +252,43 @@ def build_parser() -> argparse.ArgumentParser:
         help="finite-difference adapters whose timed windows are out of reach (MuJoCo-Warp soft bodies): time one "
         "control step of WORLDS worlds and scale it to a step with gradients (forward-only windows still timed)",
     )
+
+    p = sub.add_parser(
+        "fd-schemes", help="MuJoCo-Warp finite-difference schemes: Jacobian accuracy (float64 reference) vs cost"
+    )
+    _add(p, "fd-schemes", "task", "num_envs", "seed", "windows", "out", required=("task",))
+    p.add_argument(
+        "--timing-envs",
+        type=_nonnegative_int,
+        default=64,
+        help="envs of the timed step with gradients (0: accuracy only) (default: %(default)s)",
+    )
+    p.add_argument(
+        "--settle",
+        type=_nonnegative_int,
+        default=10,
+        help="zero-action steps before the with-contact states (default: %(default)s)",
+    )
+
+    p = sub.add_parser("scaling", help="forward and forward+backward env-steps/s over num_envs: CSV and log-log plot")
+    _add(p, "scaling", "backend", "task", "horizon", "device", "seed", "windows", "out", required=("backend", "task"))
+    p.add_argument(
+        "--envs",
+        type=_positive_int,
+        nargs="+",
+        default=[1, 4, 16, 64, 256],
+        help="env counts, in increasing order (default: %(default)s)",
+    )
+    p.add_argument(
+        "--max-seconds",
+        type=_positive_float,
+        default=600.0,
+        help="skip an env count whose predicted measuring time exceeds this (default: %(default)s)",
+    )
+
+    p = sub.add_parser("scaling-plot", help="several `scaling` CSVs in one log-log plot")
+    p.add_argument("--csv", nargs="+", required=True, help="CSV files written by `scaling`")
+    _add(p, "scaling-plot", "out", required=("out",))
 
     p = sub.add_parser("solver-probe", help="Newton solver/contact settings: forward stability and gradient size")
     _add(p, "solver-probe", "backend", "task", "num_envs", "max_steps", "out")
@@ -386,9 +425,12 @@ def cmd_throughput(args) -> int:
     print(f"  forward only:        {result.forward_steps_per_s:10.0f} env-steps/s")
     print(f"  forward + backward:  {result.forward_backward_steps_per_s:10.0f} env-steps/s")
     print(f"  gradient cost:       {result.gradient_cost_factor:10.2f} x a forward-only step")
+    if result.bare_forward_steps_per_s is not None:
+        print(f"  bare engine:         {result.bare_forward_steps_per_s:10.0f} env-steps/s (forward only)")
+        print(f"  adapter / bare time: {result.forward_overhead_ratio:10.3f} (forward only)")
     if result.bare_engine_steps_per_s is not None:
         print(f"  bare engine:         {result.bare_engine_steps_per_s:10.0f} env-steps/s (forward + backward)")
-        print(f"  adapter / bare time: {result.overhead_ratio:10.3f}")
+        print(f"  adapter / bare time: {result.overhead_ratio:10.3f} (forward + backward)")
     if args.out:
         path = write_json(args.out, {"result": result.as_dict(), "provenance": provenance()})
         print(f"wrote {path}")
@@ -585,7 +627,83 @@ def cmd_solver_probe(args) -> int:
     return 0
 
 
+def cmd_fd_schemes(args) -> int:
+    from harness.results import atomic_write_text, provenance, write_json
+
+    _validate_names("mujoco_warp", args.task)
+    from tasks import task_class
+
+    if task_class(args.task).layout.num_particles:
+        raise BadInput("fd-schemes compares schemes on articulated tasks (ant, go2); soft bodies have no C reference")
+    if args.out:
+        _check_output_file(args.out + ".json")
+    from harness.fd_schemes import fd_schemes, markdown
+
+    print(f"fd-schemes mujoco_warp/{args.task}: accuracy on {args.num_envs} envs, cost at {args.timing_envs} envs")
+    report = fd_schemes(
+        args.task,
+        num_envs=args.num_envs,
+        timing_envs=args.timing_envs,
+        windows=args.windows,
+        seed=args.seed,
+        settle=args.settle,
+    )
+    if args.out:
+        print(f"wrote {write_json(args.out + '.json', {**report, 'provenance': provenance()})}")
+        print(f"wrote {atomic_write_text(args.out + '.md', markdown(report, _command()))}")
+    return 0
+
+
+def cmd_scaling(args) -> int:
+    from harness.results import provenance, write_json
+    from harness.scaling import scaling, write
+
+    _validate_names(args.backend, args.task)
+    _check_device(args.device)
+    if sorted(args.envs) != list(args.envs) or len(set(args.envs)) != len(args.envs):
+        raise BadInput(f"--envs must be distinct and increasing, got {args.envs}")
+    out = args.out or f"results/scaling_{args.backend}_{args.task}" + ("" if args.device == "cpu" else "_cuda")
+    _check_output_file(out + ".csv")
+    print(f"scaling {args.backend}/{args.task}: envs {args.envs}, {args.horizon}-step windows, best of {args.windows}")
+    rows = scaling(
+        args.backend,
+        args.task,
+        env_counts=args.envs,
+        horizon=args.horizon,
+        windows=args.windows,
+        device=args.device,
+        seed=args.seed,
+        max_seconds=args.max_seconds,
+    )
+    prov = provenance()
+    for path in write(rows, out, _command(), prov):
+        print(f"wrote {path}")
+    print(f"wrote {write_json(out + '.json', {'rows': rows, 'provenance': prov})}")
+    return 0
+
+
+def cmd_scaling_plot(args) -> int:
+    from pathlib import Path
+
+    from harness.scaling import plot
+
+    missing = [c for c in args.csv if not Path(c).is_file()]
+    if missing:
+        raise BadInput(f"no such scaling CSV: {missing[0]}")
+    if not args.out.endswith(".png"):
+        raise BadInput(f"--out must name a .png file, got {args.out!r}")
+    _check_output_file(args.out)
+    try:
+        print(f"wrote {plot(args.csv, args.out)}")
+    except (KeyError, ValueError) as exc:
+        raise BadInput(f"not a scaling CSV ({exc}): {' '.join(args.csv)}") from None
+    return 0
+
+
 VERBS = {
+    "scaling-plot": cmd_scaling_plot,
+    "scaling": cmd_scaling,
+    "fd-schemes": cmd_fd_schemes,
     "list": cmd_list,
     "gradcheck": cmd_gradcheck,
     "throughput": cmd_throughput,

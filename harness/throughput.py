@@ -19,7 +19,10 @@ class ThroughputResult:
     windows: int
     forward_steps_per_s: float
     forward_backward_steps_per_s: float
-    bare_engine_steps_per_s: float | None = None  # the engine's own tape rollout, if the adapter has one
+    #: the engine alone doing the work of a step with gradients (a tape rollout, finite-difference worlds)
+    bare_engine_steps_per_s: float | None = None
+    #: the engine alone stepping forward (no tape, one world per env)
+    bare_forward_steps_per_s: float | None = None
 
     @property
     def overhead_ratio(self) -> float | None:
@@ -27,6 +30,13 @@ class ThroughputResult:
         if self.bare_engine_steps_per_s is None:
             return None
         return self.bare_engine_steps_per_s / self.forward_backward_steps_per_s
+
+    @property
+    def forward_overhead_ratio(self) -> float | None:
+        """Adapter time / bare engine time for the same forward-only window."""
+        if self.bare_forward_steps_per_s is None:
+            return None
+        return self.bare_forward_steps_per_s / self.forward_steps_per_s
 
     @property
     def gradient_cost_factor(self) -> float:
@@ -40,6 +50,7 @@ class ThroughputResult:
         return {
             **asdict(self),
             "overhead_ratio": self.overhead_ratio,
+            "forward_overhead_ratio": self.forward_overhead_ratio,
             "gradient_cost_factor": self.gradient_cost_factor,
         }
 
@@ -80,25 +91,26 @@ def forward_rate(sim: BatchedSim, horizon: int = 32, windows: int = 3, seed: int
     return sim.num_envs * horizon / min(_window(sim, horizon, False, gen) for _ in range(windows))
 
 
-def measure(sim: BatchedSim, horizon: int = 32, windows: int = 5, seed: int = 0) -> ThroughputResult:
+def measure(sim: BatchedSim, horizon: int = 32, windows: int = 5, seed: int = 0, bare: bool = True) -> ThroughputResult:
     """Best-of-``windows`` rates after one warm-up window each (Warp compiles on first use).
 
-    The bare-engine reference is the adapter's optional ``bare_engine_rollout`` (None: none).
+    The bare-engine references are the adapter's optional ``bare_engine_rollout`` with and without
+    gradients (None: none), timed in the same rounds; ``bare=False`` skips them.
     """
     gen = torch.Generator().manual_seed(seed)
     steps = sim.num_envs * horizon
-    best = {False: float("inf"), True: float("inf"), "bare": float("inf")}
+    best = {False: float("inf"), True: float("inf"), "bare": float("inf"), "bare_forward": float("inf")}
     for grad in (False, True):
         _window(sim, horizon, grad, gen)  # warm-up: kernel compilation, buffer allocation
     # interleave the variants so a slow patch of machine time hits all of them alike
     for _ in range(windows):
         for grad in (False, True):
             best[grad] = min(best[grad], _window(sim, horizon, grad, gen))
-        bare = sim.bare_engine_rollout(horizon)
-        if bare is not None:
-            best["bare"] = min(best["bare"], bare)
-    rates = {k: steps / v for k, v in best.items()}
-    bare_rate = rates["bare"] if best["bare"] < float("inf") else None
+            engine_only = sim.bare_engine_rollout(horizon, grad=grad) if bare else None
+            if engine_only is not None:
+                key = "bare" if grad else "bare_forward"
+                best[key] = min(best[key], engine_only)
+    rates = {k: (steps / v if v < float("inf") else None) for k, v in best.items()}
     return ThroughputResult(
         backend=sim.name,
         task=sim.task.name,
@@ -107,5 +119,6 @@ def measure(sim: BatchedSim, horizon: int = 32, windows: int = 5, seed: int = 0)
         windows=windows,
         forward_steps_per_s=rates[False],
         forward_backward_steps_per_s=rates[True],
-        bare_engine_steps_per_s=bare_rate,
+        bare_engine_steps_per_s=rates["bare"],
+        bare_forward_steps_per_s=rates["bare_forward"],
     )

@@ -196,3 +196,13 @@ def test_bad_actions_are_refused(adapter, kind):
         actions[2, 0] = float(kind)
     with pytest.raises(InvalidActionError):
         sim.step(actions)
+
+
+def test_a_bare_engine_reference_if_offered_times_both_passes_and_leaves_the_envs_alone(adapter):
+    """``throughput`` divides by these seconds: positive and finite, or None (no reference)."""
+    sim = _sim(adapter, num_envs=2)
+    before = sim.state.engine.detach().clone()
+    for grad in (False, True):
+        seconds = sim.bare_engine_rollout(2, grad=grad)
+        assert seconds is None or (math.isfinite(seconds) and seconds > 0), (grad, seconds)
+    assert torch.equal(sim.state.engine, before)

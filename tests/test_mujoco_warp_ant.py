@@ -17,6 +17,8 @@ pytest.importorskip("mujoco_warp")
 
 from backends import BackendError, ControlKind, InvalidActionError, NonFiniteStateError, make  # noqa: E402
 from backends.mujoco_warp import MujocoWarpSim, build_spec, engine_to_generalized, generalized_to_engine  # noqa: E402
+from backends.mujoco_warp.adapter import FD_SCHEMES  # noqa: E402
+from backends.mujoco_warp.reference import float64_step_jacobians  # noqa: E402
 from harness.gradcheck import DEFAULT_TOLERANCE, gradcheck  # noqa: E402
 from simcore import quat_from_angle_axis, quat_mul  # noqa: E402
 from tasks import make_task  # noqa: E402
@@ -29,7 +31,7 @@ def ant():
 
 @pytest.fixture(scope="module")
 def sim(ant):
-    return make("mujoco_warp", ant, num_envs=2, seed=1)
+    return make("mujoco_warp", ant, num_envs=2, seed=1, fd_scheme="central")
 
 
 def _actions(n, gen, grad=False):
@@ -188,8 +190,11 @@ def _tangent_rows(jac: np.ndarray, next_engine: np.ndarray) -> np.ndarray:
     return np.concatenate((jac[0:3], 2.0 * e_conj @ jac[3:7], jac[7:]))
 
 
-def test_step_jacobians_match_mujoco_transition_fd(sim, ant):
-    """Contact-free state; measured max relative error (Frobenius, per env) ~6e-5 for A and ~4e-5 for B."""
+@pytest.mark.parametrize("scheme", FD_SCHEMES)
+def test_step_jacobians_match_mujoco_transition_fd(ant, scheme):
+    """Contact-free state, each scheme at its default steps; measured max relative error (Frobenius,
+    per env) for A and B: central ~6e-5 and ~4e-5, forward ~8e-4 and ~5e-5."""
+    sim = make("mujoco_warp", ant, num_envs=2, seed=1, fd_scheme=scheme)
     gen = torch.Generator().manual_seed(4)
     q, qd = ant.sample_initial_state(2, gen)
     q[:, 2] = 2.0
@@ -203,8 +208,33 @@ def test_step_jacobians_match_mujoco_transition_fd(sim, ant):
         b = _tangent_rows(jac_control[i].numpy(), y)
         err_a = np.linalg.norm(a - a_ref) / np.linalg.norm(a_ref)
         err_b = np.linalg.norm(b - b_ref) / np.linalg.norm(b_ref)
-        print(f"env {i}: Jacobian vs mjd_transitionFD, relative error A {err_a:.2e}, B {err_b:.2e}")
+        print(f"{scheme} env {i}: Jacobian vs mjd_transitionFD, relative error A {err_a:.2e}, B {err_b:.2e}")
         assert err_a < 1e-3 and err_b < 1e-3, (err_a, err_b)
+
+
+def test_the_float64_whole_step_reference_agrees_with_mjd_transition_fd(sim, ant):
+    """The reference of ``harness fd-schemes`` (float64 central differences of a whole control step on
+    MuJoCo C) against chained ``mjd_transitionFD``: two float64 references, ~1e-8 apart when correct."""
+    gen = torch.Generator().manual_seed(6)
+    q, qd = ant.sample_initial_state(2, gen)
+    q[:, 2] = 2.0
+    engine = sim.state_from_generalized(q, qd).engine.detach()[0]
+    control = ant.actions_to_control(0.5 * _actions(2, gen))[0]
+    y, jac_state, jac_control = float64_step_jacobians(sim, engine, control)
+    a_ref, b_ref = _transition_fd_reference(ant, engine.double().numpy(), control.double().numpy())
+    a, b = _tangent_rows(jac_state, y), _tangent_rows(jac_control, y)
+    assert np.linalg.norm(a - a_ref) / np.linalg.norm(a_ref) < 1e-6
+    assert np.linalg.norm(b - b_ref) / np.linalg.norm(b_ref) < 1e-6
+
+
+def test_forward_differences_step_half_the_worlds_and_share_the_nominal_world(sim, ant):
+    forward = make("mujoco_warp", ant, num_envs=2, seed=1, fd_scheme="forward")
+    assert forward.worlds_per_env_with_grad == 1 + (2 * 14 + 8)
+    assert sim.worlds_per_env_with_grad == 1 + 2 * (2 * 14 + 8)
+    engine, control = sim.state.engine.detach(), ant.actions_to_control(torch.zeros(2, 8))
+    assert torch.equal(forward.fd_jacobians(engine, control)[0], sim.fd_jacobians(engine, control)[0])
+    with pytest.raises(ValueError, match="fd_scheme must be one of central, forward"):
+        make("mujoco_warp", ant, num_envs=1, fd_scheme="backward")
 
 
 # -- (d) stability -----------------------------------------------------------------------------

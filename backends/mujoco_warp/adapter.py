@@ -117,6 +117,7 @@ from simcore import (
     ControlKind,
     SimState,
     StateLayout,
+    activation_nodal_forces,
     quat_conjugate,
     quat_from_rotation_vector,
     quat_mul,
@@ -124,6 +125,8 @@ from simcore import (
     wxyz_to_xyzw,
     xyzw_to_wxyz,
 )
+
+FD_SCHEMES = ("central", "forward")  # finite-difference schemes of the ``fd_scheme`` option
 
 _ROOT_Q = 7  # free joint: position (3) + quaternion w, x, y, z (4)
 _ROOT_V = 6  # free joint: linear velocity (3, world frame) + angular velocity (3, body frame)
@@ -213,7 +216,9 @@ class MujocoWarpSim(BatchedSim):
             return self._build_soft()
         if task.layout.num_particles:
             raise BackendError("the mujoco_warp adapter runs particles only as a soft body (tet activations)")
-        self.fd_eps_state = float(self.options.get("fd_eps_state", 1e-2))
+        self._read_fd_scheme()
+        # a forward difference's truncation error is first order: a smaller state step (module docstring)
+        self.fd_eps_state = float(self.options.get("fd_eps_state", 1e-2 if self.fd_scheme == "central" else 2e-3))
         self.position_control = task.control_kind == ControlKind.JOINT_POSITION_TARGET
         # 1 N m of torque, or 1e-2 rad of PD target (x kp = 0.3 N m on the Go2); module docstring
         self.fd_eps_control = float(self.options.get("fd_eps_control", 1e-2 if self.position_control else 1.0))
@@ -254,6 +259,7 @@ class MujocoWarpSim(BatchedSim):
         task, layout = self.task, self.task.layout
         self.checked_soft_body()
         self.position_control = False
+        self._read_fd_scheme()
         self.fd_eps_state = float(self.options.get("fd_eps_state", 1e-3))
         self.fd_eps_control = float(self.options.get("fd_eps_control", 1e-2))
         self.fd_chunk_worlds = int(self.options.get("fd_chunk_worlds", 256))
@@ -272,14 +278,38 @@ class MujocoWarpSim(BatchedSim):
         eps = [self.fd_eps_state] * (2 * dofs) + [self.fd_eps_control] * layout.num_tets
         self._fd_steps = torch.tensor(eps, dtype=torch.float64, device=self.device)
 
+    def _read_fd_scheme(self) -> None:
+        self.fd_scheme = str(self.options.get("fd_scheme", "central"))
+        if self.fd_scheme not in FD_SCHEMES:
+            raise ValueError(f"fd_scheme must be one of {', '.join(FD_SCHEMES)}, got {self.fd_scheme!r}")
+
     @property
     def layout(self) -> StateLayout:
         return self.task.layout
 
     @property
     def worlds_per_env_with_grad(self) -> int:
-        """Worlds one env costs in a step with grad: nominal plus +/- every tangent coordinate."""
-        return 1 + 2 * self._fd_steps.numel()
+        """Worlds one env costs in a step with grad: the nominal world plus one (forward differences)
+        or two (central) per tangent coordinate."""
+        return self._fd_deltas().shape[0]
+
+    def _fd_deltas(self) -> torch.Tensor:
+        """(K, P) tangent perturbations, one per world: row 0 nominal, then +eps e_i (P rows), then
+        for central differences -eps e_i (P rows)."""
+        steps = self._fd_steps
+        rows = [steps.new_zeros(1, steps.numel()), torch.diag(steps)]
+        if self.fd_scheme == "central":
+            rows.append(-torch.diag(steps))
+        return torch.cat(rows)
+
+    def _fd_quotients(self, y: torch.Tensor) -> torch.Tensor:
+        """Difference quotients from the K outputs ``y`` (K, ..., D) of :meth:`_fd_deltas`' worlds: (P, ..., D)."""
+        num_coords = self._fd_steps.numel()
+        steps = self._fd_steps.reshape(-1, *([1] * (y.dim() - 1)))
+        plus = y[1 : 1 + num_coords]
+        if self.fd_scheme == "central":
+            return (plus - y[1 + num_coords :]) / (2.0 * steps)
+        return (plus - y[:1]) / steps
 
     def _data_for(self, nworld: int) -> tuple[mjw.Data, dict[str, torch.Tensor]]:
         """A Warp ``Data`` with ``nworld`` worlds (cached) and torch views of the arrays we set and read."""
@@ -379,6 +409,62 @@ class MujocoWarpSim(BatchedSim):
             "sample_seconds": seconds,
         }
 
+    def bare_engine_rollout(self, horizon: int, grad: bool = True) -> float | None:
+        """Seconds for ``horizon`` control steps of MuJoCo-Warp alone: ``substeps`` ``mujoco_warp.step``
+        calls each, no torch in between, on the worlds the adapter steps: N for a forward step, N x
+        ``worlds_per_env_with_grad`` for a step with gradients (every env's nominal and perturbed worlds,
+        the batch :meth:`fd_jacobians` steps). The worlds start from the current states (each env's state
+        in all its worlds) with a fixed applied force: the joint torques of random actions, or for
+        position targets the PD torque of random targets at the start. The adapter's per-substep PD law
+        and activation forces (torch) and its difference quotients and vector-Jacobian products count as
+        adapter time. A soft body's step with gradients (3109 worlds per env) is out of reach: ``None``
+        (:meth:`gradient_step_cost` estimates it)."""
+        import time
+
+        if self.soft and grad:
+            return None
+        gen = torch.Generator().manual_seed(0)
+        actions = 2.0 * torch.rand(self.num_envs, self.task.action_dim, generator=gen) - 1.0
+        control = self.task.actions_to_control(actions).to(self.device, torch.float32)
+        engine = self.state.engine.detach()
+        if self.soft:  # each env on its own model, one world each, activation forces of the start fixed
+            batches = []
+            for e in range(self.num_envs):
+                data, view = self.soft_models._data_for(e, 1)
+                half = engine.shape[1] // 2
+                view["qpos"].copy_(engine[e : e + 1, :half])
+                view["qvel"].copy_(engine[e : e + 1, half:])
+                positions = self.soft_models.rest[e : e + 1] + engine[e : e + 1, :half].reshape(1, -1, 3)
+                forces = activation_nodal_forces(
+                    positions, self.soft_models.tets, control[e : e + 1], self.task.soft_body.k_lambda
+                )
+                view["qfrc_applied"].copy_(forces.reshape(1, -1))
+                batches.append((self.soft_models.models[e], data))
+        else:
+            copies = self.worlds_per_env_with_grad if grad else 1
+            data, view = self._data_for(self.num_envs * copies)
+            qpos, qvel = self._split(engine)
+            layout = self.layout
+            root = layout.nv - layout.num_dofs
+            torque = control
+            if self.position_control:
+                torque = self.task.physics.pd_torque(control, qpos[:, layout.nq - layout.num_dofs :], qvel[:, root:])
+            view["qpos"].copy_(qpos.repeat(copies, 1))
+            view["qvel"].copy_(qvel.repeat(copies, 1))
+            view["qfrc_applied"].zero_()
+            view["qfrc_applied"][:, root:] = torque.repeat(copies, 1)
+            view["qacc_warmstart"].zero_()
+            batches = [(self.model, data)]
+        substeps = self.task.physics.substeps * horizon
+        with wp.ScopedDevice(self.wp_device):
+            wp.synchronize_device(self.wp_device)
+            start = time.perf_counter()
+            for model, data in batches:
+                for _ in range(substeps):
+                    mjw.step(model, data)
+            wp.synchronize_device(self.wp_device)
+            return time.perf_counter() - start
+
     def _run_soft_envs(self, engine: torch.Tensor, control: torch.Tensor) -> torch.Tensor:
         """One control step of every env's soft body (each on its own model), no gradient."""
         half = engine.shape[1] // 2
@@ -390,10 +476,8 @@ class MujocoWarpSim(BatchedSim):
 
     def _soft_fd_jacobians(self, engine: torch.Tensor, control: torch.Tensor):
         """:meth:`fd_jacobians` for soft bodies: env by env, perturbations in chunks of fd_chunk_worlds."""
-        steps = self._fd_steps
-        num_coords = steps.numel()
         half = engine.shape[1] // 2
-        deltas = torch.cat((steps.new_zeros(1, num_coords), torch.diag(steps), -torch.diag(steps)))
+        deltas = self._fd_deltas()
         outputs, jac = [], []
         for e in range(engine.shape[0]):
             x = torch.cat((engine[e], control[e])).unsqueeze(0) + deltas  # (K, 2 dofs + T), all additive
@@ -401,14 +485,14 @@ class MujocoWarpSim(BatchedSim):
             run = self.soft_models.run
             y = torch.cat([run(e, c[:, :half], c[:, half : 2 * half], c[:, 2 * half :]) for c in chunks]).double()
             outputs.append(y[0].float())
-            jac.append(((y[1 : 1 + num_coords] - y[1 + num_coords :]) / (2.0 * steps[:, None])).T)  # (D, P)
+            jac.append(self._fd_quotients(y).T)  # (D, P)
         jac = torch.stack(jac)
         return torch.stack(outputs), jac[:, :, : 2 * half].contiguous(), jac[:, :, 2 * half :].contiguous()
 
     def fd_jacobians(
         self, engine: torch.Tensor, control: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Next engine state and its central-difference Jacobians, for every env.
+        """Next engine state and its finite-difference Jacobians (``fd_scheme``), for every env.
 
         Returns ``next_engine`` (N, D) float32, ``jac_state`` (N, D, 2 nv) and ``jac_control``
         (N, D, J), both float64: derivatives of the ambient next state w.r.t. the tangent state
@@ -418,10 +502,7 @@ class MujocoWarpSim(BatchedSim):
         control = control.detach().to(self.device, torch.float64)
         if self.soft:
             return self._soft_fd_jacobians(engine, control)
-        steps = self._fd_steps
-        num_coords = steps.numel()
-        # row 0: nominal; rows 1..P: +eps e_i; rows P+1..2P: -eps e_i (P tangent coordinates)
-        deltas = torch.cat((steps.new_zeros(1, num_coords), torch.diag(steps), -torch.diag(steps)))
+        deltas = self._fd_deltas()
         outputs, jac = [], []
         for start in range(0, engine.shape[0], self.fd_chunk_envs):
             e = engine[start : start + self.fd_chunk_envs]
@@ -429,9 +510,8 @@ class MujocoWarpSim(BatchedSim):
             qpos, qvel, torque = self._retract(e, u, deltas)  # (K * n, .) worlds, perturbation-major
             y = self._run_worlds(qpos.float(), qvel.float(), torque.float()).double()
             y = y.reshape(deltas.shape[0], e.shape[0], -1)
-            diff = (y[1 : 1 + num_coords] - y[1 + num_coords :]) / (2.0 * steps[:, None, None])
             outputs.append(y[0].float())
-            jac.append(diff.permute(1, 2, 0))  # (n, D, P)
+            jac.append(self._fd_quotients(y).permute(1, 2, 0))  # (n, D, P)
         jac = torch.cat(jac)
         nt = 2 * self.layout.nv
         return torch.cat(outputs), jac[:, :, :nt].contiguous(), jac[:, :, nt:].contiguous()

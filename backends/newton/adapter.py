@@ -33,6 +33,7 @@ How gradients stay exact:
 
 from __future__ import annotations
 
+import contextlib
 import warnings
 
 import newton
@@ -487,9 +488,9 @@ class NewtonSim(BatchedSim):
             raise BackendError(f"position targets must have shape {expected}, got {tuple(control.shape)}")
         return control
 
-    def bare_engine_rollout(self, horizon: int) -> float:
-        """Seconds per forward+backward window on raw Newton/Warp (see :func:`bare_tape_rollout`)."""
-        return bare_tape_rollout(self, horizon)
+    def bare_engine_rollout(self, horizon: int, grad: bool = True) -> float:
+        """Seconds per window on raw Newton/Warp, forward+backward or forward only (:func:`bare_tape_rollout`)."""
+        return bare_tape_rollout(self, horizon, grad=grad)
 
     # -- generalized -> engine coordinates ------------------------------------------------
     def state_from_generalized(self, joint_q, joint_qd, particle_q=None, particle_qd=None) -> SimState:
@@ -603,8 +604,9 @@ class _NewtonFK(torch.autograd.Function):
         return None, grad_q, grad_qd
 
 
-def bare_tape_rollout(sim: NewtonSim, horizon: int, repeats: int = 1, seed: int = 0) -> float:
-    """Seconds per forward+backward of ``horizon`` frames on raw Newton/Warp, no torch involved.
+def bare_tape_rollout(sim: NewtonSim, horizon: int, repeats: int = 1, seed: int = 0, grad: bool = True) -> float:
+    """Seconds per forward+backward of ``horizon`` frames on raw Newton/Warp, no torch involved
+    (``grad=False``: the same frames forward only, without a tape).
 
     The reference for the adapter's overhead: the same model, solver, contact pipeline, substeps
     and fresh state buffers per substep, one tape over the whole window, a loss on the final
@@ -618,10 +620,10 @@ def bare_tape_rollout(sim: NewtonSim, horizon: int, repeats: int = 1, seed: int 
 
     model, phys, layout = sim.model, sim.task.physics, sim.layout
     subs = phys.substeps
-    states = [model.state(requires_grad=True) for _ in range(horizon * subs + 1)]
-    controls = [model.control(requires_grad=True) for _ in range(horizon * subs if sim.position_control else horizon)]
+    states = [model.state(requires_grad=grad) for _ in range(horizon * subs + 1)]
+    controls = [model.control(requires_grad=grad) for _ in range(horizon * subs if sim.position_control else horizon)]
     contacts = [sim.pipeline.contacts() for _ in range(horizon)]
-    loss = wp.zeros(1, dtype=float, device=model.device, requires_grad=True)
+    loss = wp.zeros(1, dtype=float, device=model.device, requires_grad=grad)
     sim._load_state(states[0], sim.state.engine)
     rng = np.random.default_rng(seed)
     targets = []
@@ -629,7 +631,7 @@ def bare_tape_rollout(sim: NewtonSim, horizon: int, repeats: int = 1, seed: int 
         if sim.position_control:  # targets within a quarter radian of the current pose
             q = sim.state.dof_q(layout).detach().cpu().numpy()
             values = (q + rng.uniform(-0.25, 0.25, q.shape)).astype(np.float32).ravel()
-            targets.append(wp.array(values, dtype=float, device=model.device, requires_grad=True))
+            targets.append(wp.array(values, dtype=float, device=model.device, requires_grad=grad))
         elif sim.soft:  # activations as the SoftJumper's actions give them
             activations = rng.uniform(-0.3, 0.3, sim.num_envs * layout.num_tets).astype(np.float32)
             controls[t].tet_activations.assign(activations)
@@ -641,7 +643,7 @@ def bare_tape_rollout(sim: NewtonSim, horizon: int, repeats: int = 1, seed: int 
     best = float("inf")
     for _ in range(repeats + 1):  # the first pass warms caches and is not counted
         start = time.perf_counter()
-        tape = wp.Tape()
+        tape = wp.Tape() if grad else contextlib.nullcontext()
         for t in range(horizon):
             sim.pipeline.collide(states[t * subs], contacts[t])
             with tape:
@@ -654,6 +656,10 @@ def bare_tape_rollout(sim: NewtonSim, horizon: int, repeats: int = 1, seed: int 
                             newton.eval_ik(model, states[s], pd_q, pd_qd)
                         sim.launch_pd(targets[t], pd_q, pd_qd, control.joint_f)
                     sim.solver.step(states[s], states[s + 1], control, contacts[t], phys.sim_dt)
+        if not grad:
+            wp.synchronize_device(model.device)
+            best = min(best, time.perf_counter() - start)
+            continue
         with tape:
             if sim.soft:
                 wp.launch(_sum_particles, dim=model.particle_count, inputs=[states[-1].particle_q], outputs=[loss])

@@ -1,0 +1,147 @@
+"""How an adapter's cost grows with the number of envs: throughput over num_envs, CSV and a log-log plot.
+
+For each env count a fresh adapter is built and :func:`harness.throughput.measure` times forward-only
+and forward+backward windows (best of ``windows`` after a warm-up; no bare-engine rounds, which
+``throughput`` reports). An env count that fails (memory, a buffer overflow) is recorded with its
+error and the sweep goes on; a count over ``max_seconds`` of estimated time is skipped and recorded as
+such, so the curve says where it stops and why.
+
+Reading the curve: while the CPU is launch-bound, a step costs about the same whatever N, so
+env-steps/s grow linearly with N (slope 1 on the log-log plot); once compute-bound, the time per
+step grows with N and the curve flattens (slope 0).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import time
+from pathlib import Path
+
+from harness.envs import make_sim
+from harness.results import atomic_write_text
+from harness.throughput import measure
+from tasks import make_task
+
+DEFAULT_ENVS = (1, 4, 16, 64, 256)
+PASSES = (("forward_steps_per_s", "forward"), ("forward_backward_steps_per_s", "forward+backward"))
+FIELDS = ("backend", "task", "num_envs", "horizon", "forward_steps_per_s", "forward_backward_steps_per_s", "note")
+
+
+def scaling(
+    backend: str,
+    task_name: str,
+    env_counts=DEFAULT_ENVS,
+    horizon: int = 8,
+    windows: int = 3,
+    device: str = "cpu",
+    seed: int = 0,
+    max_seconds: float = 600.0,
+    progress=print,
+) -> list[dict]:
+    """One row per env count (see the module docstring).
+
+    ``max_seconds`` bounds the measured time of one env count: the next count's cost is predicted
+    from the last measured step times scaled by the env ratio (an over-estimate while launch-bound),
+    and a count predicted to exceed it is skipped with a note.
+    """
+    rows = []
+    last = None  # (num_envs, seconds for warm-up + windows of both variants)
+    for n in env_counts:
+        row = {"backend": backend, "task": task_name, "num_envs": n, "horizon": horizon}
+        if last is not None and last[1] * n / last[0] > max_seconds:
+            row.update(forward_steps_per_s=None, forward_backward_steps_per_s=None)
+            row["note"] = f"skipped: ~{last[1] * n / last[0]:.0f} s predicted > max {max_seconds:.0f} s"
+            progress(f"  {n:5d} envs: {row['note']}")
+            rows.append(row)
+            continue
+        start = time.perf_counter()
+        try:
+            sim = make_sim(backend, make_task(task_name), n, device, seed, horizon)
+            result = measure(sim, horizon=horizon, windows=windows, seed=seed, bare=False)
+        except (RuntimeError, ValueError, MemoryError) as exc:
+            row.update(forward_steps_per_s=None, forward_backward_steps_per_s=None)
+            row["note"] = f"failed: {type(exc).__name__}: {str(exc).splitlines()[0][:200]}"
+            progress(f"  {n:5d} envs: {row['note']}")
+            rows.append(row)
+            continue
+        last = (n, time.perf_counter() - start)
+        row.update(
+            forward_steps_per_s=result.forward_steps_per_s,
+            forward_backward_steps_per_s=result.forward_backward_steps_per_s,
+            note="",
+        )
+        progress(
+            f"  {n:5d} envs: forward {result.forward_steps_per_s:10.1f}  forward+backward "
+            f"{result.forward_backward_steps_per_s:10.1f} env-steps/s  ({last[1]:.0f} s)"
+        )
+        rows.append(row)
+    return rows
+
+
+def to_csv(rows: list[dict], command: str, provenance: dict) -> str:
+    """CSV with a comment header saying how it was made (command, commit, machine)."""
+    out = io.StringIO()
+    out.write(f"# {command}\n")
+    out.write(f"# commit {provenance.get('git_commit')}, {provenance['machine']['cpu_model']}, ")
+    out.write(f"{provenance['machine']['cpu_count']} cores, created {provenance['created_utc']}\n")
+    writer = csv.DictWriter(out, fieldnames=FIELDS)
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({k: row.get(k) for k in FIELDS})
+    return out.getvalue()
+
+
+def read_csv(path: str | Path) -> list[dict]:
+    lines = [line for line in Path(path).read_text().splitlines() if not line.startswith("#")]
+    rows = []
+    for row in csv.DictReader(lines):
+        for key in ("forward_steps_per_s", "forward_backward_steps_per_s"):
+            row[key] = float(row[key]) if row[key] else None
+        row["num_envs"] = int(row["num_envs"])
+        rows.append(row)
+    return rows
+
+
+def plot(csv_paths: list[str | Path], out_png: str | Path, title: str = "") -> Path:
+    """Log-log env-steps/s vs num_envs: one colour per backend x task, solid forward, dashed with gradients."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import pandas as pd
+    import seaborn as sns
+
+    records = []
+    for path in csv_paths:
+        for row in read_csv(path):
+            for key, label in PASSES:
+                if row[key] is not None:
+                    records.append(
+                        {
+                            "num envs": row["num_envs"],
+                            "env-steps/s": row[key],
+                            "backend / task": f"{row['backend']} / {row['task']}",
+                            "pass": label,
+                        }
+                    )
+    data = pd.DataFrame(records)
+    sns.set_theme(style="whitegrid")
+    fig, ax = plt.subplots(figsize=(8, 5.5))
+    sns.lineplot(data=data, x="num envs", y="env-steps/s", hue="backend / task", style="pass", markers=True, ax=ax)
+    ax.set_xscale("log", base=2)
+    ax.set_yscale("log")
+    ax.set_title(title or "throughput vs number of envs (log-log)")
+    fig.tight_layout()
+    out_png = Path(out_png)
+    out_png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out_png, dpi=90)
+    plt.close(fig)
+    return out_png
+
+
+def write(rows: list[dict], out_prefix: str | Path, command: str, provenance: dict) -> list[Path]:
+    out_prefix = Path(out_prefix)
+    csv_path = atomic_write_text(out_prefix.with_suffix(".csv"), to_csv(rows, command, provenance))
+    png = plot([csv_path], out_prefix.with_suffix(".png"), title=f"{rows[0]['backend']} / {rows[0]['task']}")
+    return [csv_path, png]

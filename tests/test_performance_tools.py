@@ -1,0 +1,67 @@
+"""The measuring verbs of the performance work: ``scaling`` (CSV, plot, skips) and ``fd-schemes``."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from harness.cli import main
+
+
+def _pointmass_or_skip():
+    import backends
+
+    if "pointmass" not in backends.available():
+        pytest.skip("the test plugin is not installed here (tox -e py installs it)")
+
+
+def test_scaling_writes_csv_json_and_plot_and_skips_what_would_take_too_long(tmp_path, capsys):
+    _pointmass_or_skip()
+    out = tmp_path / "scaling_pm"
+    args = ["scaling", "--backend", "pointmass", "--task", "pointmass", "--envs", "1", "2", "4"]
+    assert main([*args, "--horizon", "2", "--windows", "1", "--out", str(out)]) == 0
+    rows = json.loads(out.with_suffix(".json").read_text())["rows"]
+    assert [r["num_envs"] for r in rows] == [1, 2, 4]
+    assert all(r["forward_steps_per_s"] > 0 and r["forward_backward_steps_per_s"] > 0 for r in rows)
+    csv_text = out.with_suffix(".csv").read_text()
+    assert csv_text.startswith("# python -m harness") and "# commit " in csv_text
+    assert "pointmass,pointmass,4,2," in csv_text
+    assert out.with_suffix(".png").stat().st_size > 0
+
+    tight = tmp_path / "scaling_tight"
+    assert main([*args, "--horizon", "2", "--windows", "1", "--max-seconds", "1e-9", "--out", str(tight)]) == 0
+    rows = json.loads(tight.with_suffix(".json").read_text())["rows"]
+    assert rows[0]["forward_steps_per_s"] > 0
+    assert all(r["forward_steps_per_s"] is None and r["note"].startswith("skipped") for r in rows[1:])
+
+    both = tmp_path / "both.png"
+    csvs = [str(out.with_suffix(".csv")), str(tight.with_suffix(".csv"))]
+    assert main(["scaling-plot", "--csv", *csvs, "--out", str(both)]) == 0
+    assert both.stat().st_size > 0
+
+
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["scaling", "--backend", "newton", "--task", "ant", "--envs", "4", "1"], "distinct and increasing"),
+        (["scaling", "--backend", "newton", "--task", "ant", "--envs", "0"], "positive integer"),
+        (["scaling-plot", "--csv", "nowhere.csv", "--out", "x.png"], "no such scaling CSV"),
+        (["fd-schemes", "--task", "soft_jumper"], "articulated tasks"),
+    ],
+)
+def test_bad_input_to_the_measuring_verbs_is_one_line(args, needle, capsys):
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and needle in err
+
+
+def test_fd_schemes_measures_forward_differences_against_the_float64_reference(tmp_path):
+    pytest.importorskip("mujoco_warp")
+    from harness.fd_schemes import fd_schemes, markdown
+
+    report = fd_schemes("ant", num_envs=1, timing_envs=0, settle=2, grid=(("forward", 2e-3),), progress=lambda _: None)
+    (row,) = report["rows"]
+    assert row["worlds_per_env"] == 1 + 2 * 14 + 8
+    assert row["contact_free_state_error"] < 1e-3 and row["contact_free_control_error"] < 1e-3
+    assert "| forward | 0.002 | 1 | 37 |" in markdown(report, "cmd")
