@@ -77,6 +77,9 @@ class BatchedSim(ABC):
     name: str = ""
     #: the tasks the contract test suite (tests/test_contract.py) runs this adapter on
     contract_tasks: tuple[str, ...] = ("ant",)
+    #: the keyword options the adapter reads; any other is refused at build time (a misspelt option
+    #: would otherwise be silently ignored). ``None``: the adapter does not declare them (unchecked).
+    known_options: tuple[str, ...] | None = None
 
     def __init_subclass__(cls, **kwargs):
         """Every adapter's ``state_from_generalized`` checks its input first (:meth:`check_generalized`)."""
@@ -137,6 +140,11 @@ class BatchedSim(ABC):
         self.max_graph_steps = max_graph_steps
         # the task's validated settings for this adapter first, explicit options on top
         self.options = {**dict(getattr(task, "backend_options", {}).get(self.name, {})), **options}
+        if self.known_options is not None:
+            unknown = sorted(set(self.options) - set(self.known_options))
+            if unknown:
+                known = ", ".join(self.known_options) or "none"
+                raise BackendError(f"the {self.name} adapter has no option {unknown[0]!r}; its options: {known}")
         self.generator = torch.Generator(device="cpu").manual_seed(self.seed)
         self.step_count = 0
         supported = self.supported_control_kinds()

@@ -72,6 +72,19 @@ def _finite(text: str) -> float:
     return value
 
 
+def _option(text: str) -> tuple[str, object]:
+    """``KEY=VALUE`` with VALUE read as an int, a float or else a string."""
+    key, sep, value = text.partition("=")
+    if not sep or not key.strip() or not value.strip():
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    for kind in (int, float):
+        try:
+            return key.strip(), kind(value)
+        except ValueError:
+            pass
+    return key.strip(), value.strip()
+
+
 def _positive_float(text: str) -> float:
     value = _finite(text) if text.lower() not in ("nan", "inf", "-inf") else float("nan")
     if not value > 0.0:
@@ -117,6 +130,12 @@ FLAGS: dict[str, dict] = {
     "max_steps": {"type": _positive_int, "help": "cap on steps per evaluation episode"},
     "checkpoint_every": {"type": _positive_int, "default": 1, "help": "epochs between checkpoints"},
     "tolerance": {"type": _positive_float, "help": "max relative gradient error allowed (default 2e-2)"},
+    "backend_option": {
+        "type": _option,
+        "action": "append",
+        "metavar": "KEY=VALUE",
+        "help": "adapter option, repeatable, e.g. fd_scheme=central (see the adapter's docstring)",
+    },
 }
 
 # the few flags whose default differs by verb, in one place
@@ -189,6 +208,7 @@ def build_parser() -> argparse.ArgumentParser:
         "seed",
         "steps",
         "tolerance",
+        "backend_option",
         required=("backend", "task"),
     )
     p.add_argument(
@@ -243,6 +263,7 @@ def build_parser() -> argparse.ArgumentParser:
         "seed",
         "windows",
         "out",
+        "backend_option",
         required=("backend", "task"),
     )
     p.add_argument(
@@ -271,7 +292,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
 
     p = sub.add_parser("scaling", help="forward and forward+backward env-steps/s over num_envs: CSV and log-log plot")
-    _add(p, "scaling", "backend", "task", "horizon", "device", "seed", "windows", "out", required=("backend", "task"))
+    names = ("backend", "task", "horizon", "device", "seed", "windows", "out", "backend_option")
+    _add(p, "scaling", *names, required=("backend", "task"))
     p.add_argument(
         "--envs",
         type=_positive_int,
@@ -331,7 +353,8 @@ def _make_sim(args, horizon: int):
     from tasks import make_task
 
     try:
-        return make_sim(args.backend, make_task(args.task), args.num_envs, args.device, args.seed, horizon)
+        options = dict(getattr(args, "backend_option", None) or [])
+        return make_sim(args.backend, make_task(args.task), args.num_envs, args.device, args.seed, horizon, **options)
     except (RuntimeError, ValueError) as exc:
         raise BadInput(f"cannot build {args.backend}/{args.task} on {args.device}: {exc}") from exc
 
@@ -674,6 +697,7 @@ def cmd_scaling(args) -> int:
         device=args.device,
         seed=args.seed,
         max_seconds=args.max_seconds,
+        options=dict(args.backend_option or []),
     )
     prov = provenance()
     for path in write(rows, out, _command(), prov):

@@ -8,9 +8,10 @@ from tasks import make_task
 from tasks.env import TaskEnv
 
 
-def make_sim(backend: str, task, num_envs: int, device: str = "cpu", seed: int = 0, horizon: int = 32):
-    """Adapter ``backend`` for ``task``; backward passes reach at most ``horizon`` steps (one window)."""
-    return backends.make(backend, task, num_envs=num_envs, device=device, seed=seed, max_graph_steps=horizon)
+def make_sim(backend: str, task, num_envs: int, device: str = "cpu", seed: int = 0, horizon: int = 32, **options):
+    """Adapter ``backend`` for ``task`` with adapter ``options``; backward passes reach at most
+    ``horizon`` steps (one window)."""
+    return backends.make(backend, task, num_envs=num_envs, device=device, seed=seed, max_graph_steps=horizon, **options)
 
 
 def make_env(

@@ -37,6 +37,7 @@ def scaling(
     device: str = "cpu",
     seed: int = 0,
     max_seconds: float = 600.0,
+    options: dict | None = None,
     progress=print,
 ) -> list[dict]:
     """One row per env count (see the module docstring).
@@ -48,7 +49,7 @@ def scaling(
     rows = []
     last = None  # (num_envs, seconds for warm-up + windows of both variants)
     for n in env_counts:
-        row = {"backend": backend, "task": task_name, "num_envs": n, "horizon": horizon}
+        row = {"backend": backend, "task": task_name, "num_envs": n, "horizon": horizon, "options": options or {}}
         if last is not None and last[1] * n / last[0] > max_seconds:
             row.update(forward_steps_per_s=None, forward_backward_steps_per_s=None)
             row["note"] = f"skipped: ~{last[1] * n / last[0]:.0f} s predicted > max {max_seconds:.0f} s"
@@ -57,7 +58,7 @@ def scaling(
             continue
         start = time.perf_counter()
         try:
-            sim = make_sim(backend, make_task(task_name), n, device, seed, horizon)
+            sim = make_sim(backend, make_task(task_name), n, device, seed, horizon, **(options or {}))
             result = measure(sim, horizon=horizon, windows=windows, seed=seed, bare=False)
         except (RuntimeError, ValueError, MemoryError) as exc:
             row.update(forward_steps_per_s=None, forward_backward_steps_per_s=None)

@@ -206,3 +206,11 @@ def test_a_bare_engine_reference_if_offered_times_both_passes_and_leaves_the_env
         seconds = sim.bare_engine_rollout(2, grad=grad)
         assert seconds is None or (math.isfinite(seconds) and seconds > 0), (grad, seconds)
     assert torch.equal(sim.state.engine, before)
+
+
+def test_a_misspelt_adapter_option_is_refused_in_one_line(adapter):
+    cls, task = adapter
+    if cls.known_options is None:
+        pytest.skip(f"the {cls.name} adapter does not declare its options")
+    with pytest.raises(BackendError, match=f"the {cls.name} adapter has no option 'no_such_option'; its options: "):
+        cls(task, num_envs=1, no_such_option=1)

@@ -48,6 +48,8 @@ def test_scaling_writes_csv_json_and_plot_and_skips_what_would_take_too_long(tmp
         (["scaling", "--backend", "newton", "--task", "ant", "--envs", "0"], "positive integer"),
         (["scaling-plot", "--csv", "nowhere.csv", "--out", "x.png"], "no such scaling CSV"),
         (["fd-schemes", "--task", "soft_jumper"], "articulated tasks"),
+        (["throughput", "--backend", "newton", "--task", "ant", "--backend-option", "fd_scheme"], "KEY=VALUE"),
+        (["gradcheck", "--backend", "newton", "--task", "ant", "--backend-option", "fd_scheme=forward"], "no option"),
     ],
 )
 def test_bad_input_to_the_measuring_verbs_is_one_line(args, needle, capsys):

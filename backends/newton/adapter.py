@@ -96,6 +96,14 @@ class NewtonSim(BatchedSim):
 
     name = "newton"
     contract_tasks = ("ant", "go2", "soft_jumper")
+    known_options = (
+        "solver",
+        "contact_gap",
+        "mass_matrix_every",
+        "angular_damping",
+        "joint_attach_ke",
+        "joint_attach_kd",
+    )
     SOLVERS = ("semi_implicit", "featherstone")
 
     # -- construction ---------------------------------------------------------------------
