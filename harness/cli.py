@@ -307,6 +307,11 @@ def build_parser() -> argparse.ArgumentParser:
         default=600.0,
         help="skip an env count whose predicted measuring time exceeds this (default: %(default)s)",
     )
+    p.add_argument(
+        "--forward-only",
+        action="store_true",
+        help="time forward windows only (env counts whose steps with gradients are out of reach)",
+    )
 
     p = sub.add_parser("scaling-plot", help="several `scaling` CSVs in one log-log plot")
     p.add_argument("--csv", nargs="+", required=True, help="CSV files written by `scaling`")
@@ -685,7 +690,8 @@ def cmd_scaling(args) -> int:
     _check_device(args.device)
     if sorted(args.envs) != list(args.envs) or len(set(args.envs)) != len(args.envs):
         raise BadInput(f"--envs must be distinct and increasing, got {args.envs}")
-    out = args.out or f"results/scaling_{args.backend}_{args.task}" + ("" if args.device == "cpu" else "_cuda")
+    suffix = ("" if args.device == "cpu" else "_cuda") + ("_forward" if args.forward_only else "")
+    out = args.out or f"results/scaling_{args.backend}_{args.task}{suffix}"
     _check_output_file(out + ".csv")
     print(f"scaling {args.backend}/{args.task}: envs {args.envs}, {args.horizon}-step windows, best of {args.windows}")
     rows = scaling(
@@ -698,6 +704,7 @@ def cmd_scaling(args) -> int:
         seed=args.seed,
         max_seconds=args.max_seconds,
         options=dict(args.backend_option or []),
+        forward_only=args.forward_only,
     )
     prov = provenance()
     for path in write(rows, out, _command(), prov):

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from harness.envs import make_sim
 from harness.results import atomic_write_text
-from harness.throughput import measure
+from harness.throughput import forward_rate, measure
 from tasks import make_task
 
 DEFAULT_ENVS = (1, 4, 16, 64, 256)
@@ -38,6 +38,7 @@ def scaling(
     seed: int = 0,
     max_seconds: float = 600.0,
     options: dict | None = None,
+    forward_only: bool = False,
     progress=print,
 ) -> list[dict]:
     """One row per env count (see the module docstring).
@@ -59,7 +60,12 @@ def scaling(
         start = time.perf_counter()
         try:
             sim = make_sim(backend, make_task(task_name), n, device, seed, horizon, **(options or {}))
-            result = measure(sim, horizon=horizon, windows=windows, seed=seed, bare=False)
+            if forward_only:
+                result = None
+                forward = forward_rate(sim, horizon=horizon, windows=windows, seed=seed)
+            else:
+                result = measure(sim, horizon=horizon, windows=windows, seed=seed, bare=False)
+                forward = result.forward_steps_per_s
         except (RuntimeError, ValueError, MemoryError) as exc:
             row.update(forward_steps_per_s=None, forward_backward_steps_per_s=None)
             row["note"] = f"failed: {type(exc).__name__}: {str(exc).splitlines()[0][:200]}"
@@ -67,15 +73,10 @@ def scaling(
             rows.append(row)
             continue
         last = (n, time.perf_counter() - start)
-        row.update(
-            forward_steps_per_s=result.forward_steps_per_s,
-            forward_backward_steps_per_s=result.forward_backward_steps_per_s,
-            note="",
-        )
-        progress(
-            f"  {n:5d} envs: forward {result.forward_steps_per_s:10.1f}  forward+backward "
-            f"{result.forward_backward_steps_per_s:10.1f} env-steps/s  ({last[1]:.0f} s)"
-        )
+        with_grad = None if result is None else result.forward_backward_steps_per_s
+        row.update(forward_steps_per_s=forward, forward_backward_steps_per_s=with_grad, note="")
+        grad_text = "(not measured)" if with_grad is None else f"{with_grad:10.1f}"
+        progress(f"  {n:5d} envs: forward {forward:10.1f}  forward+backward {grad_text} env-steps/s  ({last[1]:.0f} s)")
         rows.append(row)
     return rows
 

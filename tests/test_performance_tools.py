@@ -35,8 +35,13 @@ def test_scaling_writes_csv_json_and_plot_and_skips_what_would_take_too_long(tmp
     assert rows[0]["forward_steps_per_s"] > 0
     assert all(r["forward_steps_per_s"] is None and r["note"].startswith("skipped") for r in rows[1:])
 
+    forward = tmp_path / "scaling_forward"
+    assert main([*args, "--horizon", "2", "--windows", "1", "--forward-only", "--out", str(forward)]) == 0
+    rows = json.loads(forward.with_suffix(".json").read_text())["rows"]
+    assert all(r["forward_steps_per_s"] > 0 and r["forward_backward_steps_per_s"] is None for r in rows)
+
     both = tmp_path / "both.png"
-    csvs = [str(out.with_suffix(".csv")), str(tight.with_suffix(".csv"))]
+    csvs = [str(out.with_suffix(".csv")), str(tight.with_suffix(".csv")), str(forward.with_suffix(".csv"))]
     assert main(["scaling-plot", "--csv", *csvs, "--out", str(both)]) == 0
     assert both.stat().st_size > 0
 
