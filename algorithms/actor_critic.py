@@ -357,9 +357,15 @@ class FirstOrderActorCritic(nn.Module):
             grad_var = float(gradient_variance(self.group_gradients(w)))
             self.actor_opt.step()
         entropy = self.update_alpha(w) if cfg.soft else float(-w.log_probs.mean())
+        lambda_start = time.perf_counter()
+        metrics["actor_update_s"] = lambda_start - start  # clipping, gradient variance, the step, SAPO's alpha
         lambda_loss = self.update_lambda(w) if self.lambda_update_due(self.epoch) else float("nan")
+        critic_start = time.perf_counter()
+        metrics["lambda_update_s"] = critic_start - lambda_start
         critic_loss, critic_skipped = self.update_critic(w)
-        metrics["update_s"] = time.perf_counter() - start
+        end = time.perf_counter()
+        metrics["critic_update_s"] = end - critic_start
+        metrics["update_s"] = end - start
         self.epoch += 1
         metrics.update(
             actor_loss=float(loss.detach()),

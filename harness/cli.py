@@ -1,7 +1,8 @@
 """``python -m harness VERB ...``: the benchmark's command line.
 
 Verbs: ``list``, ``gradcheck``, ``throughput``, ``train`` (and ``train --resume DIR``), ``eval``,
-``report``, ``sweep``, ``grad-growth``, ``crosscheck``, ``solver-probe``. Every flag is declared once
+``report``, ``sweep``, ``grad-growth``, ``crosscheck``, ``solver-probe``, ``fd-schemes``, ``scaling``,
+``scaling-plot``, ``bench`` (the suite), ``bench-run`` (one of its runs), ``landscape``. Every flag is declared once
 in :data:`FLAGS` (type, default, help) and every hyperparameter flag is generated from
 :class:`algorithms.config.AlgoConfig`, whose field docs are the ``--help`` text. Bad input (an
 unknown backend or task, an invalid number or configuration) prints one ``error:`` line and exits 2.
@@ -209,6 +210,7 @@ def build_parser() -> argparse.ArgumentParser:
         "steps",
         "tolerance",
         "backend_option",
+        "out",
         required=("backend", "task"),
     )
     p.add_argument(
@@ -230,7 +232,12 @@ def build_parser() -> argparse.ArgumentParser:
     _hyperparameter_flags(p)
 
     p = sub.add_parser("eval", help="evaluate a run's final (and initial) policy; writes DIR/eval.json")
-    _add(p, "eval", "run", "eval_seeds", "num_envs", "max_steps", required=("run",))
+    _add(p, "eval", "run", "eval_seeds", "num_envs", "max_steps", "out", required=("run",))
+    p.add_argument(
+        "--backend",
+        help="evaluate on this backend instead of the one the run trained on (sim-to-sim; "
+        "default file DIR/eval_on_BACKEND.json)",
+    )
 
     p = sub.add_parser("report", help="tables (md, csv: per run and mean over seeds) and curves (png)")
     _add(p, "report", "runs", "out", required=("runs", "out"))
@@ -316,6 +323,28 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("scaling-plot", help="several `scaling` CSVs in one log-log plot")
     p.add_argument("--csv", nargs="+", required=True, help="CSV files written by `scaling`")
     _add(p, "scaling-plot", "out", required=("out",))
+
+    p = sub.add_parser(
+        "bench",
+        help="the benchmark suite: checks, training grid, sim-to-sim, loss landscapes, then tables and plots",
+    )
+    p.add_argument("--profile", help="smoke (tox -e bench), standard (results/) or paper (a cluster's worth)")
+    p.add_argument("--spec", help="a TOML spec of your own (format: harness/bench.py and README)")
+    p.add_argument(
+        "--store", default="results/bench", help="where runs, checks, logs and tables go (default: %(default)s)"
+    )
+    p.add_argument("--jobs", type=_positive_int, help="processes at once (default: the spec's [suite] jobs)")
+    p.add_argument("--dry-run", action="store_true", help="list the jobs, their state and estimated cost; run none")
+    p.add_argument("--report-only", action="store_true", help="write the tables and plots from what is finished")
+
+    p = sub.add_parser("bench-run", help="(used by bench) train or resume one planned run, then evaluate it")
+    p.add_argument("run_dir", help="a run directory planned by bench (holds job.json)")
+
+    p = sub.add_parser("landscape", help="h-step and TD-lambda actor losses over a plane of policy parameters")
+    _add(p, "landscape", "run", "num_envs", "seed", required=("run",))
+    p.add_argument("--grid", type=_positive_int, default=40, help="points per axis (default: %(default)s)")
+    p.add_argument("--span", type=_positive_float, default=1.0, help="each axis spans [-span, span] (default: 1)")
+    p.add_argument("--warmup-steps", type=_nonnegative_int, default=0, help="policy steps before the window")
 
     p = sub.add_parser("solver-probe", help="Newton solver/contact settings: forward stability and gradient size")
     _add(p, "solver-probe", "backend", "task", "num_envs", "max_steps", "out")
@@ -414,6 +443,8 @@ def cmd_gradcheck(args) -> int:
 
     _validate_names(args.backend, args.task)
     _check_device(args.device)
+    if args.out:
+        _check_output_file(args.out)
     sim = _make_sim(args, horizon=args.steps)
     tolerance = args.tolerance or DEFAULT_TOLERANCE
     start_height = None
@@ -434,6 +465,22 @@ def cmd_gradcheck(args) -> int:
         print(f"  {label}  max relative error {error:.3e} (central differences per {mode[:-1]})")
     ok = result.max_rel_error <= tolerance
     print(f"max relative error {result.max_rel_error:.3e} (tolerance {tolerance:.1e}): {'PASS' if ok else 'FAIL'}")
+    if args.out:
+        from harness.results import provenance, write_json
+
+        summary = {
+            "backend": args.backend,
+            "task": args.task,
+            "num_envs": args.num_envs,
+            "steps": args.steps,
+            "segment": segment,
+            "action_rel_error": result.action_rel_error,
+            "state_rel_error": result.state_rel_error,
+            "max_rel_error": result.max_rel_error,
+            "tolerance": tolerance,
+            "passed": ok,
+        }
+        print(f"wrote {write_json(args.out, {'result': summary, 'provenance': provenance(_command())})}")
     return 0 if ok else 1
 
 
@@ -533,15 +580,28 @@ def cmd_train(args) -> int:
 def cmd_eval(args) -> int:
     from pathlib import Path
 
-    from harness.train import evaluate
+    from harness.train import eval_file_name, evaluate, read_config
 
-    result = evaluate(args.run, seeds=args.eval_seeds, num_envs=args.num_envs, max_steps=args.max_steps)
+    config = read_config(Path(args.run))
+    if args.backend:
+        _validate_names(args.backend, config["task"])
+    if args.out:
+        _check_output_file(args.out)
+    result = evaluate(
+        args.run,
+        seeds=args.eval_seeds,
+        num_envs=args.num_envs,
+        max_steps=args.max_steps,
+        backend=args.backend,
+        out=args.out,
+    )
     print(f"initial policy: mean return {result['initial']['mean_return']:.1f}")
     print(
         f"final policy:   mean return {result['final']['mean_return']:.1f} "
         f"(std over {args.eval_seeds} seeds {result['final']['std_over_seeds']:.1f})"
     )
-    print(f"wrote {Path(args.run) / 'eval.json'}")
+    written = args.out or Path(args.run) / eval_file_name(result["backend"], result["trained_on"])
+    print(f"wrote {written}")
     return 0
 
 
@@ -587,6 +647,44 @@ def cmd_sweep(args) -> int:
             runs.append(run)
     paths = write_report(runs, Path(args.out) / "summary", _command())
     print(Path(paths[0]).read_text())
+    return 0
+
+
+def cmd_bench(args) -> int:
+    from harness.bench import run_suite
+
+    return run_suite(
+        profile=args.profile,
+        spec_file=args.spec,
+        store=args.store,
+        jobs=args.jobs,
+        dry_run=args.dry_run,
+        report_only=args.report_only,
+        command=_command(),
+    )
+
+
+def cmd_bench_run(args) -> int:
+    from harness.bench import bench_run
+
+    bench_run(args.run_dir)
+    return 0
+
+
+def cmd_landscape(args) -> int:
+    from pathlib import Path
+
+    from harness.landscape import compute_landscape, plot_landscape, write_landscape
+    from harness.train import read_config
+
+    read_config(Path(args.run))
+    result = compute_landscape(
+        args.run, grid=args.grid, span=args.span, num_envs=args.num_envs, seed=args.seed, warmup_steps=args.warmup_steps
+    )
+    print(f"wrote {write_landscape(args.run, result)}")
+    print(f"wrote {plot_landscape(result, Path(args.run) / 'landscape.png')}")
+    r = result["roughness"]
+    print(f"roughness: h-step {r['h_step']:.3f}, TD-lambda {r['td_lambda']:.3f}")
     return 0
 
 
@@ -745,6 +843,9 @@ VERBS = {
     "grad-growth": cmd_grad_growth,
     "crosscheck": cmd_crosscheck,
     "solver-probe": cmd_solver_probe,
+    "bench": cmd_bench,
+    "bench-run": cmd_bench_run,
+    "landscape": cmd_landscape,
 }
 
 

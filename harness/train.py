@@ -54,7 +54,16 @@ METRICS = "metrics.jsonl"
 CHECKPOINT = "checkpoint.pt"
 INIT_CHECKPOINT = "checkpoint_init.pt"
 # metrics that measure time, not the run: everything else is equal between a resumed and an uninterrupted run
-WALL_TIME_FIELDS = ("wall_s", "epoch_s", "sim_forward_s", "backward_s", "update_s")
+WALL_TIME_FIELDS = (
+    "wall_s",
+    "epoch_s",
+    "sim_forward_s",
+    "backward_s",
+    "update_s",
+    "actor_update_s",
+    "lambda_update_s",
+    "critic_update_s",
+)
 
 
 def _rng_state() -> dict:
@@ -392,11 +401,20 @@ def evaluate(
     checkpoint: str = CHECKPOINT,
     max_steps: int | None = None,
     stream=sys.stdout,
+    backend: str | None = None,
+    out: str | Path | None = None,
 ) -> dict:
-    """Deterministic-policy returns of the first episode of every env, over ``seeds`` eval seeds."""
+    """Deterministic-policy returns of the first episode of every env, over ``seeds`` eval seeds.
+
+    ``backend``: evaluate on another engine than the run trained on (sim-to-sim: the same task, eval
+    protocol and policy; the observation statistics travel with the checkpoint). Written to
+    ``eval_on_<backend>.json`` instead of ``eval.json``, unless ``out`` names the file.
+    """
     run_dir = Path(run_dir)
     config = read_config(run_dir)
     cfg = config["algo_config"]
+    trained_on = config["backend"]
+    backend = backend or trained_on
     for name in (INIT_CHECKPOINT, checkpoint):
         if not (run_dir / name).exists():
             raise RunError(f"{run_dir} has no {name} yet: train (or --resume) it first")
@@ -408,7 +426,7 @@ def evaluate(
         for i in range(seeds):
             eval_seed = 10_000 + i  # disjoint from training seeds
             torch.manual_seed(eval_seed)
-            env = make_env(config["task"], config["backend"], n, config["device"], eval_seed, cfg.horizon)
+            env = make_env(config["task"], backend, n, config["device"], eval_seed, cfg.horizon)
             algo = FirstOrderActorCritic(cfg, env.obs_dim, env.action_dim)
             load_checkpoint(run_dir / name, algo)
             obs = env.reset()
@@ -441,6 +459,20 @@ def evaluate(
             "std_over_seeds": float(means.std()) if len(means) > 1 else 0.0,
             "per_seed": per_seed,
         }
-    payload = {"num_envs": n, "seeds": seeds, "deterministic": True, **results, "provenance": provenance()}
-    write_json(run_dir / "eval.json", payload)
+    payload = {
+        "num_envs": n,
+        "seeds": seeds,
+        "deterministic": True,
+        "max_steps": max_steps,
+        "backend": backend,
+        "trained_on": trained_on,
+        **results,
+        "provenance": provenance(),
+    }
+    write_json(Path(out) if out else run_dir / eval_file_name(backend, trained_on), payload)
     return payload
+
+
+def eval_file_name(backend: str, trained_on: str) -> str:
+    """``eval.json`` on the training backend, ``eval_on_<backend>.json`` on another (sim-to-sim)."""
+    return "eval.json" if backend == trained_on else f"eval_on_{backend}.json"

@@ -1,0 +1,678 @@
+"""The benchmark suite: one declarative grid of checks, training runs and analyses, then tables and plots.
+
+``python -m harness bench --profile smoke|standard|paper`` (the profiles are TOML files in
+``harness/profiles/``) or ``--spec FILE.toml`` (a user's own, same format). A spec names:
+
+* ``[suite]``: ``name``, ``description``, ``jobs`` (processes at once; one per core on a CPU machine,
+  since a Warp CPU kernel runs on one thread), ``device``;
+* ``[eval]``: the evaluation protocol of every training run (``seeds``, optional ``num_envs``, default
+  2N, and ``max_steps``);
+* ``[[train]]``: a grid ``backends x tasks x algos x seeds x horizons`` with ``epochs``, ``num_envs``
+  and any AlgoConfig field under ``[train.hyperparameters]``; ``[train.per_task.TASK]`` overrides
+  ``epochs``, ``num_envs``, ``horizons``, ``seeds`` or hyperparameters for one task, and
+  ``[train.eval]`` the evaluation protocol for the block (``seeds = 0``: no evaluation);
+* ``[[check]]``: ``kind`` (gradcheck, throughput, crosscheck), ``backends``, ``tasks`` and the verb's
+  extra ``args`` (a list of command-line words), optionally ``[check.per_task.TASK]`` with ``args``;
+* ``[[sim_to_sim]]``: runs of the train grid (``task``, ``train_backend``, ``algos``, ``seeds``,
+  ``horizon``) evaluated on ``train_backend`` and ``eval_backend`` with one protocol (``eval_seeds``,
+  ``num_envs``, ``max_steps``);
+* ``[[landscape]]``: runs of the grid (``task``, ``backend``, ``algos``, ``seeds``, ``horizon``) whose
+  h-step and TD-lambda actor losses are mapped over a ``grid`` x ``grid`` plane (``span``, ``num_envs``).
+
+Content addressing. A training run's directory is named by its task, backend, algorithm, horizon,
+seed and a hash of its full configuration (task, backend, seed, device, epochs and every
+hyperparameter): ``runs/ant_newton_shac_h32_s0_3f2a9c1b7d0e``. The same configuration in any spec,
+profile or session lands in the same directory, so a finished run is reused, an interrupted one
+resumed from its last checkpoint (``train --resume`` semantics), and none is ever computed twice.
+Checks and analyses are addressed the same way by their command line. Every job runs in its own
+process (``python -m harness ...``) with its output in ``logs/``; a failing job is reported and
+the suite goes on with the others. Ctrl-C stops the running jobs at their next epoch boundary
+(checkpointed); running the same command again continues where it stopped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import subprocess
+import sys
+import threading
+import time
+import tomllib
+from pathlib import Path
+
+from harness.results import RunError
+
+PROFILES_DIR = Path(__file__).resolve().parent / "profiles"
+CHECK_KINDS = ("gradcheck", "throughput", "crosscheck")
+
+# Seconds per env step of a training epoch (simulation with gradients and the updates) on this 2-core
+# CPU, from the runs in results/ (README). Only the first ETA uses them: finished jobs correct them.
+_SECONDS_PER_ENV_STEP = {
+    ("newton", "ant"): 1.2e-3,
+    ("newton", "go2"): 5e-3,
+    ("newton", "soft_jumper"): 2e-2,
+    ("mujoco_warp", "ant"): 4e-2,
+    ("mujoco_warp", "go2"): 6e-2,
+    ("mujoco_warp", "soft_jumper"): 3e3,
+}
+_SECONDS_PER_EVAL_STEP = {
+    ("newton", "ant"): 3e-4,
+    ("newton", "go2"): 1e-3,
+    ("newton", "soft_jumper"): 4e-3,
+    ("mujoco_warp", "ant"): 5e-3,
+    ("mujoco_warp", "go2"): 6e-3,
+    ("mujoco_warp", "soft_jumper"): 1.0,
+}
+_CHECK_SECONDS = {"gradcheck": 40.0, "throughput": 60.0, "crosscheck": 60.0}
+_STARTUP_S = 12.0  # a job's process start, imports and model build (Warp kernels cached)
+
+
+def _hash(payload) -> str:
+    return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:12]
+
+
+# -- the spec -------------------------------------------------------------------------------------
+
+
+def _expect(table: dict, allowed: set[str], where: str) -> None:
+    unknown = sorted(set(table) - allowed)
+    if unknown:
+        raise RunError(f"{where}: unknown key(s) {', '.join(unknown)}; allowed: {', '.join(sorted(allowed))}")
+
+
+def _names(value, where: str) -> list:
+    if isinstance(value, str | int):
+        return [value]
+    if not isinstance(value, list) or not value:
+        raise RunError(f"{where}: expected a non-empty list")
+    return value
+
+
+def load_spec(profile: str | None = None, spec_file: str | None = None) -> tuple[dict, Path]:
+    """The parsed TOML of a profile or a user's spec file, and where it came from (one-line errors)."""
+    if (profile is None) == (spec_file is None):
+        raise RunError("give exactly one of --profile NAME or --spec FILE")
+    if profile is not None:
+        path = PROFILES_DIR / f"{profile}.toml"
+        if not path.is_file():
+            known = ", ".join(sorted(p.stem for p in PROFILES_DIR.glob("*.toml")))
+            raise RunError(f"unknown profile {profile!r}; choose from: {known}")
+    else:
+        path = Path(spec_file)
+        if not path.is_file():
+            raise RunError(f"--spec {spec_file}: no such file")
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise RunError(f"{path}: not valid TOML ({exc})") from None
+    _expect(data, {"suite", "eval", "train", "check", "sim_to_sim", "landscape"}, str(path))
+    if "suite" not in data or "name" not in data["suite"]:
+        raise RunError(f"{path}: needs [suite] with a name")
+    return data, path
+
+
+@dataclasses.dataclass(frozen=True)
+class RunSpec:
+    """One training run: everything that determines its result, plus how it is evaluated."""
+
+    task: str
+    backend: str
+    algo: str
+    seed: int
+    epochs: int
+    num_envs: int
+    horizon: int
+    device: str
+    hyperparameters: tuple = ()  # sorted (field, value) pairs applied on top of the preset
+    eval_seeds: int = 10
+    eval_num_envs: int | None = None
+    eval_max_steps: int | None = None
+
+    def algo_config(self):
+        from algorithms.config import preset
+
+        changes = dict(self.hyperparameters)
+        changes = {k: tuple(v) if isinstance(v, list) else v for k, v in changes.items()}
+        return preset(self.algo).replace(num_envs=self.num_envs, horizon=self.horizon, **changes)
+
+    def identity(self) -> dict:
+        """What the run's directory is addressed by: the fields of its config.json that make the result."""
+        cfg = self.algo_config()
+        cfg = cfg.replace(max_epochs=cfg.max_epochs or self.epochs)  # as train() records it
+        return {
+            "task": self.task,
+            "backend": self.backend,
+            "seed": self.seed,
+            "device": self.device,
+            "epochs": self.epochs,
+            "algo": cfg.as_dict(),
+        }
+
+    @property
+    def key(self) -> str:
+        return _hash(self.identity())
+
+    @property
+    def dirname(self) -> str:
+        return f"{self.task}_{self.backend}_{self.algo}_h{self.horizon}_s{self.seed}_{self.key}"
+
+    @property
+    def env_steps(self) -> int:
+        return self.epochs * self.num_envs * self.horizon
+
+    def eval_settings(self) -> dict:
+        return {"seeds": self.eval_seeds, "num_envs": self.eval_num_envs, "max_steps": self.eval_max_steps}
+
+
+def _train_grid(data: dict, device: str, known: dict) -> list[RunSpec]:
+    ev = data.get("eval", {})
+    _expect(ev, {"seeds", "num_envs", "max_steps"}, "[eval]")
+    runs: list[RunSpec] = []
+    seen: set[str] = set()
+    for i, block in enumerate(data.get("train", [])):
+        where = f"[[train]] #{i + 1}"
+        _expect(
+            block,
+            {"backends", "tasks", "algos", "seeds", "horizons", "epochs", "num_envs", "hyperparameters"}
+            | {"per_task", "eval"},
+            where,
+        )
+        block_eval = {**ev, **block.get("eval", {})}
+        _expect(block_eval, {"seeds", "num_envs", "max_steps"}, f"{where} eval")
+        block_runs: list[RunSpec] = []
+        for key in ("backends", "tasks", "algos", "epochs"):
+            if key not in block:
+                raise RunError(f"{where}: needs {key}")
+        per_task = block.get("per_task", {})
+        for task, override in per_task.items():
+            allowed = {"epochs", "num_envs", "horizons", "seeds", "hyperparameters"}
+            _expect(override, allowed, f"{where} per_task.{task}")
+        for backend in _names(block["backends"], f"{where} backends"):
+            _known(backend, known["backends"], "backend", where)
+            for task in _names(block["tasks"], f"{where} tasks"):
+                _known(task, known["tasks"], "task", where)
+                merged = {**block, **per_task.get(task, {})}
+                hyper = {**block.get("hyperparameters", {}), **per_task.get(task, {}).get("hyperparameters", {})}
+                for algo in _names(block["algos"], f"{where} algos"):
+                    _known(algo, known["algos"], "algorithm", where)
+                    for seed in _names(merged.get("seeds", [0]), f"{where} seeds"):
+                        for horizon in _names(merged.get("horizons", [32]), f"{where} horizons"):
+                            run = RunSpec(
+                                task=task,
+                                backend=backend,
+                                algo=algo,
+                                seed=int(seed),
+                                epochs=int(merged["epochs"]),
+                                num_envs=int(merged.get("num_envs", 64)),
+                                horizon=int(horizon),
+                                device=device,
+                                hyperparameters=tuple(sorted(hyper.items())),
+                                eval_seeds=int(block_eval.get("seeds", 10)),
+                                eval_num_envs=block_eval.get("num_envs"),
+                                eval_max_steps=block_eval.get("max_steps"),
+                            )
+                            try:
+                                run.algo_config()
+                            except (ValueError, TypeError) as exc:
+                                raise RunError(f"{where}: bad configuration for {algo} on {task}: {exc}") from None
+                            block_runs.append(run)
+        # seed-major order: wherever a long suite stops, every algorithm has the same number of seeds
+        order = {name: i for i, name in enumerate(known["algos"])}
+        block_runs.sort(key=lambda r: (r.seed, r.horizon, order[r.algo]))
+        for run in block_runs:
+            if run.key not in seen:  # the same run listed twice (two blocks) is one run
+                seen.add(run.key)
+                runs.append(run)
+    return runs
+
+
+def _known(name, names, kind: str, where: str) -> None:
+    if name not in names:
+        raise RunError(f"{where}: unknown {kind} {name!r}; choose from: {', '.join(names)}")
+
+
+# -- jobs -------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class Job:
+    """One process of the suite: its command, the file whose presence (and content) means done, its cost."""
+
+    label: str
+    kind: str  # train, gradcheck, throughput, crosscheck, sim_to_sim, landscape
+    argv: list[str]
+    output: Path
+    estimate_s: float
+    cost_key: tuple = ()
+    run: RunSpec | None = None
+    run_dir: Path | None = None
+    expect: dict = dataclasses.field(default_factory=dict)  # fields the output must hold to count as done
+    after: list[str] = dataclasses.field(default_factory=list)  # labels of jobs that must finish first
+    state: str = "pending"  # pending, reused, running, done, failed, skipped
+
+    def is_done(self) -> bool:
+        if not self.output.is_file():
+            return False
+        if self.kind == "train" and not _training_complete(self.run_dir, self.run.epochs):
+            return False
+        if self.output.suffix == ".jsonl":  # a run without evaluation: training complete is done
+            return True
+        try:
+            payload = json.loads(self.output.read_text())
+        except (OSError, ValueError):
+            return False
+        if self.kind == "gradcheck" and not payload.get("result", {}).get("passed"):
+            return False  # a failed check is run (and reported) again, never reused as if it passed
+        return all(payload.get(k) == v for k, v in self.expect.items())
+
+
+def _training_complete(run_dir: Path, epochs: int) -> bool:
+    """True when the run's last checkpoint is at its planned epoch count (a torn run resumes instead)."""
+    ckpt = run_dir / "checkpoint.pt"
+    if not ckpt.is_file():
+        return False
+    import torch
+
+    try:
+        return int(torch.load(ckpt, map_location="cpu", weights_only=False)["epoch"]) >= epochs
+    except Exception:  # unreadable: the job's resume will say why
+        return False
+
+
+def _harness(*words) -> list[str]:
+    return [sys.executable, "-m", "harness", *[str(w) for w in words]]
+
+
+def plan(data: dict, store: Path) -> list[Job]:
+    """Every job of the spec, in the order they may start: training runs, checks, then analyses of runs."""
+    import backends
+    import tasks
+    from algorithms.config import ALGORITHMS
+
+    known = {"backends": backends.available(), "tasks": tasks.available(), "algos": list(ALGORITHMS)}
+    suite = data["suite"]
+    _expect(suite, {"name", "description", "jobs", "device"}, "[suite]")
+    device = suite.get("device", "cpu")
+    jobs: list[Job] = []
+
+    runs = _train_grid(data, device, known)
+    by_identity = {}
+
+    def episode(task: str, cap: int | None) -> int:
+        return min(cap or 10**9, int(tasks.task_class(task).episode_length))
+
+    for run in runs:
+        run_dir = store / "runs" / run.dirname
+        # initial and final policy, every seed, at most one episode each
+        eval_envs = run.eval_num_envs or 2 * run.num_envs
+        eval_steps = 2 * run.eval_seeds * eval_envs * episode(run.task, run.eval_max_steps)
+        estimate = _STARTUP_S + run.env_steps * _SECONDS_PER_ENV_STEP.get((run.backend, run.task), 5e-3)
+        estimate += eval_steps * _SECONDS_PER_EVAL_STEP.get((run.backend, run.task), 1e-4)
+        job = Job(
+            label=run.dirname,
+            kind="train",
+            argv=_harness("bench-run", run_dir),
+            output=run_dir / ("eval.json" if run.eval_seeds else "metrics.jsonl"),
+            estimate_s=estimate,
+            cost_key=("train", run.backend, run.task),
+            run=run,
+            run_dir=run_dir,
+            expect={"seeds": run.eval_seeds, "max_steps": run.eval_max_steps}
+            | ({"num_envs": run.eval_num_envs} if run.eval_num_envs else {}),
+        )
+        jobs.append(job)
+        by_identity[(run.task, run.backend, run.algo, run.seed, run.horizon)] = job
+
+    for i, block in enumerate(data.get("check", [])):
+        where = f"[[check]] #{i + 1}"
+        _expect(block, {"kind", "backends", "tasks", "args", "per_task"}, where)
+        kind = block.get("kind")
+        if kind not in CHECK_KINDS:
+            raise RunError(f"{where}: kind must be one of {', '.join(CHECK_KINDS)}, got {kind!r}")
+        blist = _names(block.get("backends", []), f"{where} backends")
+        for b in blist:
+            _known(b, known["backends"], "backend", where)
+        for task in _names(block.get("tasks", []), f"{where} tasks"):
+            _known(task, known["tasks"], "task", where)
+            args = [str(a) for a in block.get("args", []) + block.get("per_task", {}).get(task, {}).get("args", [])]
+            if kind == "crosscheck":
+                targets = [("-".join(blist), ["--task", task, "--backends", *blist])]
+            else:
+                targets = [(b, ["--backend", b, "--task", task]) for b in blist]
+            for label_backend, words in targets:
+                key = _hash([kind, *words, *args, device])
+                out = store / "checks" / f"{kind}_{task}_{label_backend}_{key}.json"
+                if kind != "crosscheck":
+                    words = [*words, "--device", device]
+                jobs.append(
+                    Job(
+                        label=f"{kind} {label_backend}/{task}",
+                        kind=kind,
+                        argv=_harness(kind, *words, *args, "--out", out),
+                        output=out,
+                        estimate_s=_STARTUP_S + _CHECK_SECONDS[kind] * (5.0 if "mujoco_warp" in label_backend else 1.0),
+                        cost_key=(kind, label_backend, task),
+                    )
+                )
+
+    def select(block: dict, where: str, backend_key: str) -> list[Job]:
+        found = [
+            job
+            for (task, backend, algo, seed, horizon), job in by_identity.items()
+            if task == block.get("task")
+            and backend == block.get(backend_key)
+            and algo in _names(block.get("algos", [algo]), f"{where} algos")
+            and seed in [int(s) for s in _names(block.get("seeds", [seed]), f"{where} seeds")]
+            and horizon == int(block.get("horizon", horizon))
+        ]
+        if not found:
+            raise RunError(f"{where}: selects no run of the [[train]] grid; it needs runs to analyse")
+        return found
+
+    for i, block in enumerate(data.get("sim_to_sim", [])):
+        where = f"[[sim_to_sim]] #{i + 1}"
+        _expect(
+            block,
+            {"task", "train_backend", "eval_backend", "algos", "seeds", "horizon"}
+            | {"eval_seeds", "num_envs", "max_steps"},
+            where,
+        )
+        _known(block.get("eval_backend"), known["backends"], "backend", where)
+        for source in select(block, where, "train_backend"):
+            protocol = {
+                "seeds": int(block.get("eval_seeds", 2)),
+                "num_envs": int(block.get("num_envs", 8)),
+                "max_steps": block.get("max_steps"),
+            }
+            for backend in (block["train_backend"], block["eval_backend"]):
+                out = source.run_dir / f"sim2sim_on_{backend}.json"
+                words = ["--eval-seeds", protocol["seeds"], "--num-envs", protocol["num_envs"]]
+                if protocol["max_steps"]:
+                    words += ["--max-steps", protocol["max_steps"]]
+                steps = 2 * protocol["seeds"] * protocol["num_envs"] * episode(source.run.task, protocol["max_steps"])
+                jobs.append(
+                    Job(
+                        label=f"sim-to-sim {source.label} on {backend}",
+                        kind="sim_to_sim",
+                        argv=_harness("eval", "--run", source.run_dir, "--backend", backend, *words, "--out", out),
+                        output=out,
+                        estimate_s=_STARTUP_S + steps * _SECONDS_PER_EVAL_STEP.get((backend, source.run.task), 3e-3),
+                        cost_key=("sim_to_sim", backend, source.run.task),
+                        expect={"backend": backend} | {k: v for k, v in protocol.items()},
+                        after=[source.label],
+                    )
+                )
+
+    for i, block in enumerate(data.get("landscape", [])):
+        where = f"[[landscape]] #{i + 1}"
+        _expect(block, {"task", "backend", "algos", "seeds", "horizon", "grid", "span", "num_envs"}, where)
+        for source in select(block, where, "backend"):
+            grid, span = int(block.get("grid", 40)), float(block.get("span", 1.0))
+            num_envs = int(block.get("num_envs", source.run.num_envs))
+            out = source.run_dir / "landscape.json"
+            jobs.append(
+                Job(
+                    label=f"landscape {source.label}",
+                    kind="landscape",
+                    argv=_harness(
+                        "landscape", "--run", source.run_dir, "--grid", grid, "--span", span, "--num-envs", num_envs
+                    ),
+                    output=out,
+                    estimate_s=_STARTUP_S + grid * grid * num_envs * source.run.horizon * 5e-4,
+                    cost_key=("landscape", source.run.backend, source.run.task),
+                    expect={"grid": grid, "span": span, "num_envs": num_envs},
+                    after=[source.label],
+                )
+            )
+    return jobs
+
+
+# -- running ----------------------------------------------------------------------------------------
+
+
+def _fmt(seconds: float) -> str:
+    if seconds >= 5400:
+        return f"{seconds / 3600:.1f} h"
+    if seconds >= 90:
+        return f"{seconds / 60:.1f} min"
+    return f"{seconds:.0f} s"
+
+
+class _Progress:
+    """Runs done / total with an ETA from the estimated costs, corrected by the jobs that finished."""
+
+    def __init__(self, name: str, jobs: list[Job], workers: int, stream):
+        self.name, self.jobs, self.workers, self.stream = name, jobs, workers, stream
+        self.t0 = time.perf_counter()
+        self.measured: dict[tuple, list[float]] = {}  # cost key -> [actual seconds, estimated seconds]
+        self.lock = threading.Lock()
+
+    def record(self, job: Job, seconds: float) -> None:
+        with self.lock:
+            actual, estimated = self.measured.get(job.cost_key, [0.0, 0.0])
+            self.measured[job.cost_key] = [actual + seconds, estimated + job.estimate_s]
+
+    def _remaining(self) -> float:
+        """Estimated seconds left: each job's estimate, scaled by how jobs of its kind, backend and task
+        actually took so far (1 until one has finished), divided over the workers."""
+        left = 0.0
+        for job in self.jobs:
+            if job.state in ("pending", "running"):
+                actual, estimated = self.measured.get(job.cost_key, [0.0, 0.0])
+                factor = actual / estimated if estimated > 0 else 1.0
+                left += job.estimate_s * factor * (0.5 if job.state == "running" else 1.0)
+        return left / max(self.workers, 1)
+
+    def line(self, event: str) -> None:
+        with self.lock:
+            finished = [j for j in self.jobs if j.state in ("done", "reused", "failed", "skipped")]
+            reused = sum(j.state == "reused" for j in self.jobs)
+            failed = sum(j.state in ("failed", "skipped") for j in self.jobs)
+            runs = [j for j in self.jobs if j.kind == "train"]
+            runs_done = sum(j.state in ("done", "reused") for j in runs)
+            elapsed = time.perf_counter() - self.t0
+            text = (
+                f"[bench {self.name}] jobs {len(finished)}/{len(self.jobs)} (runs {runs_done}/{len(runs)}; "
+                f"{reused} reused, {failed} failed) · elapsed {_fmt(elapsed)} · ETA {_fmt(self._remaining())} · {event}"
+            )
+        print(text, file=self.stream, flush=True)
+
+
+def run_jobs(jobs: list[Job], store: Path, workers: int, name: str, stream=sys.stdout) -> list[Job]:
+    """Run the jobs not yet done, ``workers`` at a time, in order, each after the jobs it needs."""
+    logs = store / "logs"
+    logs.mkdir(parents=True, exist_ok=True)
+    for job in jobs:
+        if job.is_done():
+            job.state = "reused"
+    progress = _Progress(name, jobs, workers, stream)
+    progress.line("start")
+    by_label = {job.label: job for job in jobs}
+    cond = threading.Condition()
+    stop = threading.Event()
+
+    def ready(job: Job) -> bool | None:
+        """True to start, None to skip (a job it needs failed), False to wait."""
+        states = [by_label[label].state for label in job.after]
+        if any(s in ("failed", "skipped") for s in states):
+            return None
+        return all(s in ("done", "reused") for s in states)
+
+    def worker() -> None:
+        while not stop.is_set():
+            with cond:
+                job = None
+                while job is None:
+                    pending = [j for j in jobs if j.state == "pending"]
+                    if not pending or stop.is_set():
+                        return
+                    for candidate in pending:
+                        verdict = ready(candidate)
+                        if verdict is None:
+                            candidate.state = "skipped"
+                            cond.notify_all()
+                        elif verdict:
+                            job = candidate
+                            job.state = "running"
+                            break
+                    if job is None:
+                        if not any(j.state == "pending" for j in jobs):
+                            return
+                        cond.wait(timeout=1.0)
+            _run_one(job, logs, progress)
+            with cond:
+                cond.notify_all()
+
+    def _run_one(job: Job, logs: Path, progress: _Progress) -> None:
+        if job.kind == "train":
+            _write_job_file(job)
+        log = logs / f"{job.label.replace(' ', '_').replace('/', '-')}.log"
+        progress.line(f"start {job.label}")
+        start = time.perf_counter()
+        env = {**os.environ, "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "1"), "PYTHONUNBUFFERED": "1"}
+        with log.open("a") as fh:
+            fh.write(f"\n$ {' '.join(job.argv)}\n")
+            fh.flush()
+            code = subprocess.run(job.argv, stdout=fh, stderr=subprocess.STDOUT, env=env).returncode
+        seconds = time.perf_counter() - start
+        if code in (130, 143) or stop.is_set():
+            job.state = "pending"
+            stop.set()
+            progress.line(f"stopped {job.label} (resumable)")
+            return
+        job.state = "done" if code == 0 and job.is_done() else "failed"
+        progress.record(job, seconds)
+        note = "" if job.state == "done" else f" (exit {code}; see {log})"
+        progress.line(f"{job.state} {job.label} in {_fmt(seconds)}{note}")
+
+    threads = [threading.Thread(target=worker, daemon=True) for _ in range(max(1, workers))]
+    for t in threads:
+        t.start()
+    try:
+        for t in threads:
+            while t.is_alive():
+                t.join(timeout=0.5)
+    except KeyboardInterrupt:
+        stop.set()
+        print("\nstopping: running jobs checkpoint at their next epoch boundary; run again to continue", file=stream)
+        for t in threads:
+            t.join()
+        raise
+    return jobs
+
+
+def _write_job_file(job: Job) -> None:
+    """The run's planned configuration, read by ``bench-run`` (and by nothing that changes it)."""
+    from harness.results import write_json
+
+    job.run_dir.mkdir(parents=True, exist_ok=True)
+    payload = {**job.run.identity(), "eval": job.run.eval_settings(), "key": job.run.key}
+    write_json(job.run_dir / "job.json", payload)
+
+
+def bench_run(run_dir: str | Path, stream=sys.stdout) -> Path:
+    """One training run of the suite: train, or resume an interrupted one, then evaluate (``bench-run``)."""
+    from algorithms.config import AlgoConfig
+    from harness.train import evaluate, read_config, resume, train
+
+    run_dir = Path(run_dir)
+    path = run_dir / "job.json"
+    if not path.is_file():
+        raise RunError(f"{run_dir} has no job.json: bench-run runs directories planned by `bench`")
+    job = json.loads(path.read_text())
+    if (run_dir / "config.json").is_file():
+        config = read_config(run_dir)
+        recorded = {k: config[k] for k in ("task", "backend", "seed", "device", "epochs")}
+        recorded["algo"] = config["algo_config"].as_dict()
+        if _hash(recorded) != job["key"]:
+            raise RunError(f"{run_dir}: config.json does not match the directory's address; move the folder away")
+        if not _training_complete(run_dir, job["epochs"]):
+            resume(run_dir, command="python -m harness bench-run " + str(run_dir), stream=stream)
+    else:
+        cfg = AlgoConfig.from_dict(job["algo"])
+        train(
+            run_dir,
+            job["task"],
+            job["backend"],
+            cfg,
+            job["epochs"],
+            seed=job["seed"],
+            device=job["device"],
+            command="python -m harness bench-run " + str(run_dir),
+            stream=stream,
+        )
+    ev = job["eval"]
+    if ev["seeds"]:
+        evaluate(run_dir, seeds=ev["seeds"], num_envs=ev["num_envs"], max_steps=ev["max_steps"], stream=stream)
+    return run_dir
+
+
+def run_suite(
+    profile: str | None = None,
+    spec_file: str | None = None,
+    store: str | Path = "results/bench",
+    jobs: int | None = None,
+    dry_run: bool = False,
+    report_only: bool = False,
+    command: str | None = None,
+    stream=sys.stdout,
+) -> int:
+    """Plan, run what is missing, write the tables and plots; 0 when every job succeeded."""
+    data, spec_path = load_spec(profile, spec_file)
+    store = Path(store)
+    name = data["suite"]["name"]
+    all_jobs = plan(data, store)
+    workers = jobs or int(data["suite"].get("jobs", 1))
+    if dry_run:
+        for job in all_jobs:
+            status = "done" if job.is_done() else ("resume" if (job.output.parent / "config.json").exists() else "new")
+            print(f"{status:6s} ~{_fmt(job.estimate_s):>8s}  {job.label}", file=stream)
+        total = sum(j.estimate_s for j in all_jobs if not j.is_done())
+        print(f"{len(all_jobs)} jobs; about {_fmt(total / max(workers, 1))} on {workers} workers", file=stream)
+        return 0
+    if not report_only:
+        run_jobs(all_jobs, store, workers, name, stream)
+    else:
+        for job in all_jobs:
+            job.state = "reused" if job.is_done() else "pending"
+    return _finish(data, spec_path, store, all_jobs, command, stream)
+
+
+def _finish(data: dict, spec_path: Path, store: Path, jobs: list[Job], command: str | None, stream) -> int:
+    from harness.bench_report import write_bench_report
+    from harness.results import provenance
+
+    name = data["suite"]["name"]
+    runs = [j.run_dir for j in jobs if j.kind == "train" and (j.run_dir / "config.json").is_file()]
+    checks = [j.output for j in jobs if j.kind in CHECK_KINDS and j.output.is_file()]
+    out_dir = store / name
+    header = {**provenance(command), "profile": name, "spec": str(spec_path)}
+    written = write_bench_report(runs, checks, out_dir, header)
+    failed = [j for j in jobs if j.state in ("failed", "skipped")]
+    missing = [j for j in jobs if j.state == "pending"]
+    from harness.results import write_json
+
+    status = {
+        "profile": name,
+        "spec": str(spec_path),
+        "jobs": [
+            {"label": j.label, "kind": j.kind, "state": j.state, "output": str(j.output), "command": " ".join(j.argv)}
+            for j in jobs
+        ],
+        "provenance": provenance(command),
+    }
+    written.append(write_json(out_dir / "jobs.json", status))
+    print(f"\n[bench {name}] wrote {len(written)} files in {out_dir}:", file=stream)
+    for path in written:
+        print(f"  {path}", file=stream)
+    if missing:
+        print(f"[bench {name}] {len(missing)} job(s) not run yet: run the same command again", file=stream)
+    if failed:
+        print(f"[bench {name}] {len(failed)} job(s) failed or skipped (logs in {store / 'logs'}):", file=stream)
+        for job in failed:
+            print(f"  {job.state}: {job.label}", file=stream)
+        return 1
+    return 0 if not missing else 3
