@@ -19,6 +19,10 @@
 * ``[[landscape]]``: runs of the grid (``task``, ``backend``, ``algos``, ``seeds``, ``horizon``) whose
   h-step and TD-lambda actor losses are mapped over a ``grid`` x ``grid`` plane (``span``, ``num_envs``).
 
+Layout: ``STORE/NAME/`` (``--store``, default ``results/bench``; NAME is the spec's ``[suite] name``)
+holds the tables and plots, ``runs/``, ``checks/`` and ``logs/``. Give two specs the same name (or
+the same ``--store``) to share runs between them.
+
 Content addressing. A training run's directory is named by its task, backend, algorithm, horizon,
 seed and a hash of its full configuration (task, backend, seed, device, epochs and every
 hyperparameter): ``runs/ant_newton_shac_h32_s0_3f2a9c1b7d0e``. The same configuration in any spec,
@@ -36,6 +40,7 @@ import dataclasses
 import hashlib
 import json
 import os
+import signal
 import subprocess
 import sys
 import threading
@@ -43,7 +48,7 @@ import time
 import tomllib
 from pathlib import Path
 
-from harness.results import RunError
+from harness.results import RunError, RunStopped
 
 PROFILES_DIR = Path(__file__).resolve().parent / "profiles"
 CHECK_KINDS = ("gradcheck", "throughput", "crosscheck")
@@ -68,6 +73,18 @@ _SECONDS_PER_EVAL_STEP = {
 }
 _CHECK_SECONDS = {"gradcheck": 40.0, "throughput": 60.0, "crosscheck": 60.0}
 _STARTUP_S = 12.0  # a job's process start, imports and model build (Warp kernels cached)
+
+
+class SuiteStopped(RunStopped):
+    """The suite stopped on a signal; its running jobs checkpointed (exit 128 + signal, like ``train``)."""
+
+    def __init__(self, store, finished: int, total: int, signum: int):
+        RuntimeError.__init__(
+            self,
+            f"{signal.Signals(signum).name}: {finished}/{total} jobs finished, the running ones checkpointed in "
+            f"{store}; run the same command again to continue",
+        )
+        self.signum = signum
 
 
 def _hash(payload) -> str:
@@ -493,6 +510,8 @@ def run_jobs(jobs: list[Job], store: Path, workers: int, name: str, stream=sys.s
     by_label = {job.label: job for job in jobs}
     cond = threading.Condition()
     stop = threading.Event()
+    running: set[subprocess.Popen] = set()
+    running_lock = threading.Lock()
 
     def ready(job: Job) -> bool | None:
         """True to start, None to skip (a job it needs failed), False to wait."""
@@ -536,7 +555,15 @@ def run_jobs(jobs: list[Job], store: Path, workers: int, name: str, stream=sys.s
         with log.open("a") as fh:
             fh.write(f"\n$ {' '.join(job.argv)}\n")
             fh.flush()
-            code = subprocess.run(job.argv, stdout=fh, stderr=subprocess.STDOUT, env=env).returncode
+            with running_lock:
+                if stop.is_set():
+                    job.state = "pending"
+                    return
+                proc = subprocess.Popen(job.argv, stdout=fh, stderr=subprocess.STDOUT, env=env, start_new_session=True)
+                running.add(proc)
+            code = proc.wait()
+            with running_lock:
+                running.discard(proc)
         seconds = time.perf_counter() - start
         if code in (130, 143) or stop.is_set():
             job.state = "pending"
@@ -548,19 +575,41 @@ def run_jobs(jobs: list[Job], store: Path, workers: int, name: str, stream=sys.s
         note = "" if job.state == "done" else f" (exit {code}; see {log})"
         progress.line(f"{job.state} {job.label} in {_fmt(seconds)}{note}")
 
+    signals_seen: list[int] = []
+
+    def on_signal(signum, frame):
+        # Jobs run in their own sessions, so a terminal's Ctrl-C reaches only this process: pass each
+        # signal on exactly once. The first makes a training job finish its epoch and checkpoint; a
+        # second stops it at once (it resumes from its last checkpoint either way).
+        signals_seen.append(signum)
+        stop.set()
+        if len(signals_seen) == 1:
+            print(
+                f"\n{signal.Signals(signum).name}: the running jobs checkpoint at their next epoch boundary and stop; "
+                "run the same command again to continue (again to stop them now)",
+                file=stream,
+                flush=True,
+            )
+        with running_lock:
+            for proc in running:
+                proc.send_signal(signum)
+
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            previous[signum] = signal.signal(signum, on_signal)
     threads = [threading.Thread(target=worker, daemon=True) for _ in range(max(1, workers))]
-    for t in threads:
-        t.start()
     try:
+        for t in threads:
+            t.start()
         for t in threads:
             while t.is_alive():
                 t.join(timeout=0.5)
-    except KeyboardInterrupt:
-        stop.set()
-        print("\nstopping: running jobs checkpoint at their next epoch boundary; run again to continue", file=stream)
-        for t in threads:
-            t.join()
-        raise
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+    if signals_seen:
+        raise SuiteStopped(store, sum(j.state in ("done", "reused") for j in jobs), len(jobs), signals_seen[0])
     return jobs
 
 
@@ -622,8 +671,8 @@ def run_suite(
 ) -> int:
     """Plan, run what is missing, write the tables and plots; 0 when every job succeeded."""
     data, spec_path = load_spec(profile, spec_file)
-    store = Path(store)
     name = data["suite"]["name"]
+    store = Path(store) / name
     all_jobs = plan(data, store)
     workers = jobs or int(data["suite"].get("jobs", 1))
     if dry_run:
@@ -648,7 +697,7 @@ def _finish(data: dict, spec_path: Path, store: Path, jobs: list[Job], command: 
     name = data["suite"]["name"]
     runs = [j.run_dir for j in jobs if j.kind == "train" and (j.run_dir / "config.json").is_file()]
     checks = [j.output for j in jobs if j.kind in CHECK_KINDS and j.output.is_file()]
-    out_dir = store / name
+    out_dir = store
     header = {**provenance(command), "profile": name, "spec": str(spec_path)}
     written = write_bench_report(runs, checks, out_dir, header)
     failed = [j for j in jobs if j.state in ("failed", "skipped")]

@@ -331,7 +331,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--profile", help="smoke (tox -e bench), standard (results/) or paper (a cluster's worth)")
     p.add_argument("--spec", help="a TOML spec of your own (format: harness/bench.py and README)")
     p.add_argument(
-        "--store", default="results/bench", help="where runs, checks, logs and tables go (default: %(default)s)"
+        "--store",
+        default="results/bench",
+        help="runs, checks, logs and tables go to STORE/NAME, NAME the spec's suite name (default: %(default)s)",
     )
     p.add_argument("--jobs", type=_positive_int, help="processes at once (default: the spec's [suite] jobs)")
     p.add_argument("--dry-run", action="store_true", help="list the jobs, their state and estimated cost; run none")

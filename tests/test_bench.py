@@ -1,0 +1,242 @@
+"""The benchmark suite (`harness bench`): specs, content addressing, reuse and resume, the whole pipeline.
+
+Most tests use the point-mass plug-in (a backend and a task of its own, milliseconds per step); the
+newcomer's test runs a tiny spec on the real Newton Ant through checks, training, evaluation, a loss
+landscape, tables and plots, as `tox -e bench` does at a larger scale.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import backends
+from harness.bench import RunSpec, load_spec, plan, run_suite
+from harness.results import RunError
+
+POINTMASS = pytest.mark.skipif("pointmass" not in backends.available(), reason="the point-mass plug-in is absent")
+
+POINTMASS_SPEC = """
+[suite]
+name = "pm"
+jobs = 2
+
+[eval]
+seeds = 1
+num_envs = 4
+
+[[train]]
+backends = ["pointmass"]
+tasks = ["pointmass"]
+algos = ["shac", "shac-tdadpt"]
+seeds = [0, 1]
+horizons = [4, 8]
+epochs = 3
+num_envs = 4
+"""
+
+
+def _write(tmp_path: Path, text: str, name: str = "spec.toml") -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def _env() -> dict:
+    return dict(os.environ, OMP_NUM_THREADS="1", PYTHONUNBUFFERED="1")
+
+
+# -- specs and addresses ----------------------------------------------------------------------------
+
+
+def test_every_shipped_profile_plans(tmp_path):
+    """smoke, standard and paper parse and expand to jobs (names, algorithms and configs all valid)."""
+    counts = {}
+    for profile in ("smoke", "standard", "paper"):
+        data, _ = load_spec(profile=profile)
+        jobs = plan(data, tmp_path)
+        counts[profile] = sum(j.kind == "train" for j in jobs)
+        assert len({j.label for j in jobs}) == len(jobs), f"{profile}: two jobs share a label"
+    # the paper's protocol: 6 algorithms x 3 tasks x 10 seeds x 5 horizons on Newton, 6 x 2 x 10 on MuJoCo-Warp
+    assert counts["paper"] == 6 * 3 * 10 * 5 + 6 * 2 * 10
+    assert counts["smoke"] < counts["standard"] < counts["paper"]
+
+
+def test_run_address_is_its_full_config():
+    base = RunSpec(task="ant", backend="newton", algo="shac", seed=0, epochs=10, num_envs=8, horizon=16, device="cpu")
+    same = RunSpec(**{**base.__dict__, "eval_seeds": 3})  # how a run is evaluated is not what it is
+    assert base.key == same.key and base.dirname == same.dirname
+    for change in ({"seed": 1}, {"epochs": 11}, {"horizon": 8}, {"hyperparameters": (("actor_lr", 1e-3),)}):
+        other = RunSpec(**{**base.__dict__, **change})
+        assert other.key != base.key, change
+    assert base.dirname.startswith("ant_newton_shac_h16_s0_")
+
+
+def test_bad_specs_fail_with_one_line(tmp_path):
+    cases = {
+        "[suite]\nname='x'\n[[train]]\nbackends=['newton']\ntasks=['ant']\nalgos=['shac']\nepoch=3\n": "unknown key",
+        "[suite]\nname='x'\n[[train]]\nbackends=['nope']\ntasks=['ant']\nalgos=['shac']\nepochs=3\n": "unknown backend",
+        "[suite]\nname='x'\n[[train]]\nbackends=['newton']\ntasks=['ant']\nalgos=['ppo']\nepochs=3\n": "unknown algo",
+        "[suite]\nname='x'\n[[check]]\nkind='lint'\nbackends=['newton']\ntasks=['ant']\n": "kind must be one of",
+        "[suite]\nname='x'\n[[landscape]]\ntask='ant'\nbackend='newton'\n": "selects no run",
+        "[suite]\nname = \n": "not valid TOML",
+    }
+    for text, message in cases.items():
+        with pytest.raises(RunError, match=message) as info:
+            data, _ = load_spec(spec_file=str(_write(tmp_path, text)))
+            plan(data, tmp_path)
+        assert "\n" not in str(info.value)
+    with pytest.raises(RunError, match="unknown profile"):
+        load_spec(profile="nightly")
+    out = subprocess.run(
+        [sys.executable, "-m", "harness", "bench", "--spec", str(tmp_path / "missing.toml")],
+        capture_output=True,
+        text=True,
+        env=_env(),
+    )
+    assert out.returncode == 2 and out.stderr.strip().count("\n") == 0 and "no such file" in out.stderr
+
+
+def test_seed_major_order(tmp_path):
+    """Wherever a long suite stops, every algorithm has as many finished seeds as the others."""
+    data, _ = load_spec(spec_file=str(_write(tmp_path, POINTMASS_SPEC)))
+    runs = [j.run for j in plan(data, tmp_path) if j.kind == "train"]
+    assert [r.seed for r in runs] == sorted(r.seed for r in runs)
+    assert [(r.algo, r.horizon) for r in runs[:4]] == [("shac", 4), ("shac-tdadpt", 4), ("shac", 8), ("shac-tdadpt", 8)]
+
+
+# -- running: reuse and resume ----------------------------------------------------------------------
+
+
+@POINTMASS
+def test_finished_runs_are_reused_and_interrupted_ones_resumed(tmp_path):
+    spec = _write(tmp_path, POINTMASS_SPEC)
+    store = tmp_path / "store"
+    log = []
+
+    class Stream:
+        def write(self, text):
+            log.append(text)
+
+        def flush(self):
+            pass
+
+    assert run_suite(spec_file=str(spec), store=store, stream=Stream()) == 0
+    text = "".join(log)
+    assert "jobs 8/8 (runs 8/8; 0 reused, 0 failed)" in text and "ETA" in text
+    run_dirs = sorted((store / "pm" / "runs").iterdir())
+    assert len(run_dirs) == 8
+    stamps = {d.name: (d / "metrics.jsonl").stat().st_mtime_ns for d in run_dirs}
+    assert (store / "pm" / "returns.md").is_file()
+
+    # an interrupted run: its checkpoint says epoch 1 of 3 and it has no evaluation yet
+    victim = run_dirs[0]
+    config = json.loads((victim / "config.json").read_text())
+    import torch
+
+    payload = torch.load(victim / "checkpoint.pt", weights_only=False)
+    payload["epoch"] = 1  # as if stopped after epoch 1: the suite must resume it, not start over
+    torch.save(payload, victim / "checkpoint.pt")
+    (victim / "eval.json").unlink()
+
+    log.clear()
+    assert run_suite(spec_file=str(spec), store=store, stream=Stream()) == 0
+    text = "".join(log)
+    assert "7 reused" in text, text
+    for d in run_dirs[1:]:
+        assert (d / "metrics.jsonl").stat().st_mtime_ns == stamps[d.name], f"{d.name} was recomputed"
+    resumed = json.loads((victim / "config.json").read_text())
+    assert resumed["provenance"] == config["provenance"]  # the original command stays
+    assert len(resumed["resumed"]) == 1  # resumed once, by the suite
+    assert (victim / "eval.json").is_file()
+    rows = [json.loads(line) for line in (victim / "metrics.jsonl").read_text().splitlines()]
+    assert [r["epoch"] for r in rows] == [0, 1, 2]
+
+
+# -- the newcomer's path ----------------------------------------------------------------------------
+
+NEWCOMER_SPEC = """
+[suite]
+name = "tiny"
+jobs = 2
+
+[eval]
+seeds = 1
+num_envs = 4
+max_steps = 30
+
+[[train]]
+backends = ["newton"]
+tasks = ["ant"]
+algos = ["shac", "shac-tdadpt"]
+seeds = [0]
+horizons = [4]
+epochs = 2
+num_envs = 4
+
+[[check]]
+kind = "gradcheck"
+backends = ["newton"]
+tasks = ["ant"]
+args = ["--steps", "2"]
+
+[[check]]
+kind = "throughput"
+backends = ["newton"]
+tasks = ["ant"]
+args = ["--num-envs", "4", "--horizon", "4", "--windows", "3"]
+
+[[landscape]]
+task = "ant"
+backend = "newton"
+algos = ["shac-tdadpt"]
+horizon = 4
+grid = 3
+span = 0.5
+num_envs = 4
+"""
+
+
+def test_newcomer_tiny_spec_end_to_end(tmp_path):
+    """One backend, one task, two algorithms, 2 epochs: checks, training, evaluation, a landscape,
+    then every table and plot, through the command line a user types."""
+    spec = _write(tmp_path, NEWCOMER_SPEC)
+    store = tmp_path / "store"
+    out = subprocess.run(
+        [sys.executable, "-m", "harness", "bench", "--spec", str(spec), "--store", str(store)],
+        capture_output=True,
+        text=True,
+        env=_env(),
+        timeout=900,
+    )
+    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
+    assert "jobs 5/5 (runs 2/2; 0 reused, 0 failed)" in out.stdout
+    tables = store / "tiny"
+    closing = out.stdout[out.stdout.index("[bench tiny] wrote") :]
+    for name in ("returns", "grad_variance_vs_h", "wall_time", "throughput", "landscape", "checks"):
+        assert (tables / f"{name}.md").is_file(), name
+        assert (tables / f"{name}.csv").is_file(), name
+        assert str(tables / f"{name}.md") in closing  # the closing lines name the files written
+    commit = json.loads((tables / "jobs.json").read_text())["provenance"]["git_commit"]
+    assert commit and commit in (tables / "returns.md").read_text()
+    for png in ("learning_curves_steps.png", "grad_variance_vs_h.png", "wall_time.png", "throughput.png"):
+        assert (tables / png).stat().st_size > 1000, png
+    returns = (tables / "returns.md").read_text()
+    assert "shac-tdadpt" in returns and "shac" in returns
+    runs = sorted((store / "tiny" / "runs").iterdir())
+    landscape = json.loads(next(d for d in runs if "tdadpt" in d.name).joinpath("landscape.json").read_text())
+    assert len(landscape["losses"]["td_lambda"]) == 3
+    # a second call reuses everything
+    again = subprocess.run(
+        [sys.executable, "-m", "harness", "bench", "--spec", str(spec), "--store", str(store)],
+        capture_output=True,
+        text=True,
+        env=_env(),
+        timeout=300,
+    )
+    assert again.returncode == 0 and "jobs 5/5 (runs 2/2; 5 reused, 0 failed)" in again.stdout, again.stdout[-2000:]
