@@ -378,6 +378,9 @@ class FirstOrderActorCritic(nn.Module):
             lam=float(self.lam.detach()),
             alpha=self.alpha,
             entropy=entropy,
+            # mean task reward per env and step of this window (no entropy bonus): a learning signal every
+            # epoch, also before the first episode ends (the Ant's and Go2's last 1000 steps)
+            train_reward_per_step=float(w.env_rewards.mean()),
             finished_episodes=len(w.finished_returns),
             train_episode_return=(sum(w.finished_returns) / len(w.finished_returns)) if w.finished_returns else None,
             train_episode_length=(sum(w.finished_lengths) / len(w.finished_lengths)) if w.finished_lengths else None,

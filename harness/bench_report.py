@@ -1,0 +1,1743 @@
+"""Tables (Markdown and CSV) and seaborn plots of the benchmark suite (``python -m harness bench``).
+
+:func:`write_bench_report` reads the suite's run directories and check files and writes into one folder:
+
+Tables, each as ``NAME.md`` (title, provenance paragraph, what the numbers rest on, notes, table) and
+``NAME.csv`` (plain comma-separated values, one header line, no comment lines, so any CSV reader takes it
+as it is) with a sibling ``NAME.provenance.json``: ``{"table", "csv", "markdown", "title", "rests_on",
+"notes", "columns", "input_commits", "provenance"}`` where ``provenance`` is the ``header`` given to
+:func:`write_bench_report` (command, commit, UTC time, packages, machine, profile). A table with a second
+part writes it as ``NAME_PART.csv`` (with its own ``.provenance.json``) and as a second section of ``NAME.md``.
+
+* ``returns``: final evaluation return per (task, backend, algo, horizon): IQM over training seeds with a
+  95% percentile-bootstrap CI, mean and std, initial return, and the IQM improvement over the base algorithm
+  (``shac-tdadpt`` -> ``shac``) with a two-sample bootstrap CI (:func:`returns_table`);
+* ``grad_variance_vs_h`` (+ ``_growth``): the actor-gradient variance against the horizon;
+* ``wall_time``: the time split of every run; ``throughput``: env-steps/s of the throughput checks;
+* ``backends``: one algorithm x task x horizon on every backend side by side;
+* ``sim_to_sim`` (+ ``_mean``): a policy evaluated on another backend than it trained on;
+* ``landscape``: the roughness of the h-step and TD-lambda actor losses (``harness/landscape.py``);
+* ``checks``: every check file (gradcheck, throughput, crosscheck) in one line each.
+
+Plots (PNG, matplotlib's Agg backend, one figure per file): ``learning_curves_steps``,
+``learning_curves_wall``, ``grad_variance_vs_h``, ``lambda_alpha``, ``wall_time``, ``throughput`` and one
+``landscape_*.png`` per landscape (``harness.landscape.plot_landscape``, when that module imports).
+A plot without data is skipped (and a stale file of that name removed); ``index.md`` lists what was
+written and what was skipped, and why.
+
+Statistics. The interquartile mean (IQM) is ``scipy.stats.trim_mean(x, 0.25)``, the definition of
+rliable (Agarwal et al. 2021). Its 95% CI is scipy's percentile bootstrap over training seeds with 2000
+resamples. rliable's stratified bootstrap resamples seeds within each task; every row here is one task
+and one backend, i.e. one stratum, so the stratified bootstrap is the plain bootstrap over seeds
+(rliable 1.2.0 itself does not import with this project's pandas 3.1, hence scipy's implementation).
+Every CI uses a fresh ``np.random.default_rng(0)``, so a row's CI depends on its own data only and the
+tables are reproducible.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+import tempfile
+from collections import Counter
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from harness.results import RunError, atomic_write_text, read_metrics, write_json
+
+ALGO_ORDER = ("shac", "shac-tdfixed", "shac-tdadpt", "sapo", "sapo-tdfixed", "sapo-tdadpt")
+VARIANT_SUFFIXES = ("-tdfixed", "-tdadpt")
+BACKEND_ORDER = ("newton", "mujoco_warp")
+IQM_TRIM = 0.25  # cut 25% at each end: the mean of the middle half (rliable's IQM)
+BOOTSTRAP_RESAMPLES = 2000
+CONFIDENCE = 0.95
+BOOTSTRAP_SEED = 0
+CURVE_POINTS = 100  # points of the common x grid of a learning curve; also the most epochs a lambda curve shows
+CURVE_BOOTSTRAP = 200  # seaborn's resamples for a curve's band: a picture, not a table, and 2 CPU cores
+SIM_TO_SIM_PREFIXES = ("eval_on_", "sim2sim_on_")  # `harness eval --backend` and the suite's sim-to-sim jobs
+
+TIME_PARTS = (  # (column stem, label, metrics field)
+    ("sim_forward", "sim forward", "sim_forward_s"),
+    ("backward", "backward", "backward_s"),
+    ("actor_update", "actor update", "actor_update_s"),
+    ("critic_update", "critic update", "critic_update_s"),
+    ("lambda_update", "lambda update", "lambda_update_s"),
+    ("update_unsplit", "update (not split)", "update_s"),
+    ("other", "other", None),
+)
+
+
+class NoPlotData(Exception):
+    """A plot has nothing to show; the message says why."""
+
+
+# -- inputs ---------------------------------------------------------------------------------------
+@dataclass
+class RunRecord:
+    """What the report needs of one run directory."""
+
+    path: Path
+    task: str
+    backend: str
+    algo: str
+    horizon: int
+    seed: int
+    num_envs: int | None
+    metrics: pd.DataFrame
+    evaluation: dict | None  # eval.json, None when missing (an unfinished run)
+    cross_evaluations: dict[str, dict] = field(default_factory=dict)  # file name -> eval_on_*/sim2sim_on_* payload
+    landscape: dict | None = None
+    commit: str | None = None  # the commit the run was trained at (config.json's provenance)
+
+    @property
+    def base(self) -> str:
+        return base_algo(self.algo)
+
+    @property
+    def group(self) -> tuple[str, str, str, int]:
+        return (self.task, self.backend, self.algo, self.horizon)
+
+    @property
+    def epochs(self) -> int:
+        """Epochs completed (rows of metrics.jsonl)."""
+        return len(self.metrics)
+
+    @property
+    def env_steps(self) -> int:
+        return int(self.metrics["env_steps"].iloc[-1]) if self.epochs and "env_steps" in self.metrics else 0
+
+    @property
+    def wall_s(self) -> float:
+        """Training wall time: the last row's cumulative ``wall_s`` (the sum of ``epoch_s`` where it is absent)."""
+        if not self.epochs:
+            return math.nan
+        wall = _column(self.metrics, "wall_s")
+        return float(wall.iloc[-1]) if np.isfinite(wall.iloc[-1]) else float(_column(self.metrics, "epoch_s").sum())
+
+    @property
+    def final_return(self) -> float | None:
+        return self.evaluation["final"]["mean_return"] if self.evaluation else None
+
+    @property
+    def initial_return(self) -> float | None:
+        return self.evaluation["initial"]["mean_return"] if self.evaluation else None
+
+
+def base_algo(algo: str) -> str:
+    """The algorithm a TD-lambda variant modifies: ``shac-tdadpt`` -> ``shac``; a base is its own base."""
+    for suffix in VARIANT_SUFFIXES:
+        if algo.endswith(suffix):
+            return algo[: -len(suffix)]
+    return algo
+
+
+def collect_runs(root: Path) -> list[Path]:
+    """Every directory under ``root`` (``root`` included) that holds a ``config.json``, sorted."""
+    return sorted({p.parent for p in Path(root).rglob("config.json") if p.is_file()})
+
+
+def _say(stream, message: str) -> None:
+    print(f"[bench report] {message}", file=stream, flush=True)
+
+
+def _read_json(path: Path, stream=sys.stdout) -> dict | None:
+    """A JSON object file, or None when it is missing or unreadable (said on ``stream``)."""
+    if not path.is_file():
+        return None
+    try:
+        payload = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        _say(stream, f"ignored {path}: {exc}")
+        return None
+    if not isinstance(payload, dict):
+        _say(stream, f"ignored {path}: not a JSON object")
+        return None
+    return payload
+
+
+def _has_returns(payload: dict | None) -> bool:
+    """An evaluation payload with a number for the initial and the final policy."""
+    try:
+        return all(isinstance(payload[k]["mean_return"], int | float) for k in ("initial", "final"))
+    except (KeyError, TypeError):
+        return False
+
+
+def _column(frame: pd.DataFrame, name: str) -> pd.Series:
+    """A metrics column as floats (null -> NaN); all NaN when the column is absent (older runs)."""
+    if name not in frame:
+        return pd.Series(np.nan, index=frame.index, dtype=float)
+    return pd.to_numeric(frame[name], errors="coerce").astype(float)
+
+
+def load_run(run_dir: Path, stream=sys.stdout) -> RunRecord | None:
+    """Read one run directory; None (said on ``stream``) when its config.json is missing or unusable."""
+    run_dir = Path(run_dir)
+    config = _read_json(run_dir / "config.json", stream)
+    try:
+        algo_cfg = config["algo"]
+        task, backend, algo = str(config["task"]), str(config["backend"]), str(algo_cfg["algo"])
+        horizon, seed = int(algo_cfg.get("horizon", 0)), int(config.get("seed", 0))
+    except (KeyError, TypeError, ValueError):
+        _say(stream, f"skipped {run_dir}: no usable config.json (task, backend, seed, algo.algo, algo.horizon)")
+        return None
+    try:
+        rows = read_metrics(run_dir / "metrics.jsonl")
+    except RunError as exc:
+        _say(stream, f"{run_dir}: metrics ignored: {exc}")
+        rows = []
+    metrics = pd.DataFrame(rows)
+    if "epoch" in metrics:
+        # a resumed run may repeat the epochs after its last checkpoint: the later rows are the ones that count
+        metrics = metrics.drop_duplicates("epoch", keep="last").sort_values("epoch").reset_index(drop=True)
+    evaluation = _read_json(run_dir / "eval.json", stream)
+    if evaluation is not None and not _has_returns(evaluation):
+        _say(stream, f"{run_dir}/eval.json has no initial/final mean_return: counted as not evaluated")
+        evaluation = None
+    cross = {}
+    for prefix in SIM_TO_SIM_PREFIXES:
+        for path in sorted(run_dir.glob(f"{prefix}*.json")):
+            payload = _read_json(path, stream)
+            if _has_returns(payload):
+                payload.setdefault("backend", path.stem[len(prefix) :])
+                payload.setdefault("trained_on", backend)
+                cross[path.name] = payload
+    landscape = _read_json(run_dir / "landscape.json", stream)
+    return RunRecord(
+        path=run_dir,
+        task=task,
+        backend=backend,
+        algo=algo,
+        horizon=horizon,
+        seed=seed,
+        num_envs=algo_cfg.get("num_envs"),
+        metrics=metrics,
+        evaluation=evaluation,
+        cross_evaluations=cross,
+        landscape=landscape,
+        commit=(config.get("provenance") or {}).get("git_commit"),
+    )
+
+
+@dataclass
+class CheckRecord:
+    """One check file: ``{"result": {...}, "provenance": {...}}`` (a crosscheck keeps its result at top level)."""
+
+    path: Path
+    kind: str
+    result: dict
+    provenance: dict
+
+
+def _check_kind(name: str, result: dict) -> str:
+    """gradcheck / throughput / crosscheck / forward-crosscheck from the result's keys, else the file's prefix."""
+    if "max_rel_error" in result or "action_rel_error" in result:
+        return "gradcheck"
+    if "forward_steps_per_s" in result:
+        return "throughput"
+    if "segments" in result:
+        return "crosscheck"
+    if "com" in result and "pairs" in result:
+        return "forward-crosscheck"
+    return name.split("_", 1)[0] if "_" in name else "unknown"
+
+
+def load_check(path: Path, stream=sys.stdout) -> CheckRecord | None:
+    payload = _read_json(Path(path), stream)
+    if payload is None:
+        if not Path(path).is_file():
+            _say(stream, f"skipped check {path}: no such file")
+        return None
+    result = payload["result"] if isinstance(payload.get("result"), dict) else payload
+    result = {k: v for k, v in result.items() if k != "provenance"}
+    provenance = payload.get("provenance") if isinstance(payload.get("provenance"), dict) else {}
+    return CheckRecord(path=Path(path), kind=_check_kind(Path(path).name, result), result=result, provenance=provenance)
+
+
+# -- statistics -----------------------------------------------------------------------------------
+def iqm(values: Iterable[float]) -> float:
+    """Interquartile mean: the mean of the middle half (``scipy.stats.trim_mean(x, 0.25)``, as rliable)."""
+    x = np.asarray(list(values), dtype=float)
+    return float(stats.trim_mean(x, IQM_TRIM)) if x.size else math.nan
+
+
+def _iqm_along(sample: np.ndarray, axis: int = -1) -> np.ndarray:
+    return stats.trim_mean(sample, IQM_TRIM, axis=axis)
+
+
+def iqm_with_ci(values: Iterable[float]) -> tuple[float, float, float]:
+    """(IQM, CI low, CI high): 95% percentile bootstrap over the values (seeds); NaN bounds under 2 values."""
+    x = np.asarray(list(values), dtype=float)
+    point = iqm(x)
+    if x.size < 2:
+        return point, math.nan, math.nan
+    ci = stats.bootstrap(
+        (x,),
+        _iqm_along,
+        vectorized=True,
+        n_resamples=BOOTSTRAP_RESAMPLES,
+        confidence_level=CONFIDENCE,
+        method="percentile",
+        rng=np.random.default_rng(BOOTSTRAP_SEED),
+    ).confidence_interval
+    return point, float(ci.low), float(ci.high)
+
+
+def iqm_difference_with_ci(variant: Iterable[float], base: Iterable[float]) -> tuple[float, float, float]:
+    """IQM(variant) - IQM(base) with a 95% CI from a two-sample (unpaired) percentile bootstrap.
+
+    Unpaired: seed s of a variant and seed s of its base share nothing but the number, so each sample is
+    resampled on its own. NaN bounds when either side has fewer than 2 seeds.
+    """
+    v, b = np.asarray(list(variant), dtype=float), np.asarray(list(base), dtype=float)
+    point = iqm(v) - iqm(b)
+    if v.size < 2 or b.size < 2:
+        return point, math.nan, math.nan
+    ci = stats.bootstrap(
+        (v, b),
+        lambda x, y, axis=-1: _iqm_along(x, axis) - _iqm_along(y, axis),
+        vectorized=True,
+        paired=False,
+        n_resamples=BOOTSTRAP_RESAMPLES,
+        confidence_level=CONFIDENCE,
+        method="percentile",
+        rng=np.random.default_rng(BOOTSTRAP_SEED),
+    ).confidence_interval
+    return point, float(ci.low), float(ci.high)
+
+
+# -- grouping helpers -----------------------------------------------------------------------------
+def _rank(name: str) -> tuple[int, str]:
+    """Sort key of a name: algorithms in ALGO_ORDER, backends in BACKEND_ORDER (the reference engine
+    first), anything else (tasks, unknown names) alphabetically after them."""
+    known = ALGO_ORDER + BACKEND_ORDER
+    return (known.index(name), "") if name in known else (len(known), name)
+
+
+def _group_runs(runs: Iterable[RunRecord], key: Callable[[RunRecord], tuple]) -> dict[tuple, list[RunRecord]]:
+    """Runs grouped by ``key``, groups in a stable order (algorithms in ALGO_ORDER), members by seed."""
+    groups: dict[tuple, list[RunRecord]] = {}
+    for run in runs:
+        groups.setdefault(key(run), []).append(run)
+    # element-wise: numbers (horizons, seeds) by value, names by _rank
+    ordered = sorted(groups, key=lambda k: tuple((x, "") if isinstance(x, int) else _rank(str(x)) for x in k))
+    return {k: sorted(groups[k], key=lambda r: (r.seed, str(r.path))) for k in ordered}
+
+
+def _by_group(runs: Iterable[RunRecord]) -> dict[tuple, list[RunRecord]]:
+    return _group_runs(runs, lambda r: (r.task, r.backend, r.horizon, r.algo))
+
+
+def _value_or_range(values: Iterable) -> int | str | None:
+    """The one value all members share, else ``"min-max"``."""
+    distinct = sorted(set(values))
+    if not distinct:
+        return None
+    return distinct[0] if len(distinct) == 1 else f"{distinct[0]}-{distinct[-1]}"
+
+
+def _std(values: np.ndarray) -> float:
+    return float(np.std(values, ddof=1)) if values.size > 1 else math.nan
+
+
+# -- tables (pure functions of the records) -------------------------------------------------------
+def returns_table(runs: list[RunRecord]) -> pd.DataFrame:
+    """Final evaluation return per (task, backend, algo, horizon) over training seeds; runs without eval.json
+    are left out. ``improvement_*``: IQM(algo) - IQM(base algo) at the same task, backend and horizon."""
+    groups = _by_group(r for r in runs if r.evaluation is not None)
+    finals = {key: np.array([r.final_return for r in members], dtype=float) for key, members in groups.items()}
+    rows = []
+    for (task, backend, horizon, algo), members in groups.items():
+        final = finals[(task, backend, horizon, algo)]
+        point, low, high = iqm_with_ci(final)
+        base = base_algo(algo)
+        base_final = finals.get((task, backend, horizon, base)) if base != algo else None
+        gain = iqm_difference_with_ci(final, base_final) if base_final is not None else (math.nan,) * 3
+        rows.append(
+            {
+                "task": task,
+                "backend": backend,
+                "algo": algo,
+                "horizon": horizon,
+                "seeds": len(members),
+                "epochs": _value_or_range(r.epochs for r in members),
+                "env_steps": _value_or_range(r.env_steps for r in members),
+                "eval_seeds": _value_or_range(r.evaluation.get("seeds") for r in members),
+                "eval_num_envs": _value_or_range(r.evaluation.get("num_envs") for r in members),
+                "iqm_final": point,
+                "iqm_ci_low": low,
+                "iqm_ci_high": high,
+                "mean_final": float(final.mean()),
+                "std_final": _std(final),
+                "mean_initial": float(np.mean([r.initial_return for r in members])),
+                "base": base if base != algo else None,
+                "base_seeds": len(base_final) if base_final is not None else None,
+                "improvement_iqm": gain[0],
+                "improvement_ci_low": gain[1],
+                "improvement_ci_high": gain[2],
+            }
+        )
+    return pd.DataFrame(rows, columns=_RETURNS_COLUMNS)
+
+
+_RETURNS_COLUMNS = [
+    "task",
+    "backend",
+    "algo",
+    "horizon",
+    "seeds",
+    "epochs",
+    "env_steps",
+    "eval_seeds",
+    "eval_num_envs",
+    "iqm_final",
+    "iqm_ci_low",
+    "iqm_ci_high",
+    "mean_final",
+    "std_final",
+    "mean_initial",
+    "base",
+    "base_seeds",
+    "improvement_iqm",
+    "improvement_ci_low",
+    "improvement_ci_high",
+]
+
+
+def grad_variance_table(runs: list[RunRecord]) -> pd.DataFrame:
+    """Median, Q1 and Q3 of ``actor_grad_var`` pooled over every epoch of every seed (NaNs dropped)."""
+    rows = []
+    for (task, backend, horizon, algo), members in _by_group(r for r in runs if r.epochs).items():
+        pooled = np.concatenate([_column(r.metrics, "actor_grad_var").to_numpy() for r in members])
+        pooled = pooled[np.isfinite(pooled)]
+        q1, median, q3 = np.percentile(pooled, [25, 50, 75]) if pooled.size else (math.nan,) * 3
+        rows.append(
+            {
+                "task": task,
+                "backend": backend,
+                "algo": algo,
+                "horizon": horizon,
+                "seeds": len(members),
+                "values": int(pooled.size),
+                "median": float(median),
+                "q1": float(q1),
+                "q3": float(q3),
+            }
+        )
+    columns = ["task", "backend", "algo", "horizon", "seeds", "values", "median", "q1", "q3"]
+    return pd.DataFrame(rows, columns=columns)
+
+
+def grad_variance_growth_table(per_horizon: pd.DataFrame) -> pd.DataFrame:
+    """Per (task, backend, algo) with a finite median at more than one horizon: median(h_max) / median(h_min)."""
+    rows = []
+    finite = per_horizon[np.isfinite(per_horizon["median"].astype(float))]
+    for (task, backend, algo), sub in finite.groupby(["task", "backend", "algo"], sort=False):
+        if sub["horizon"].nunique() < 2:
+            continue
+        low, high = sub.loc[sub["horizon"].idxmin()], sub.loc[sub["horizon"].idxmax()]
+        rows.append(
+            {
+                "task": task,
+                "backend": backend,
+                "algo": algo,
+                "h_min": int(low["horizon"]),
+                "h_max": int(high["horizon"]),
+                "median_h_min": float(low["median"]),
+                "median_h_max": float(high["median"]),
+                "growth_factor": float(high["median"] / low["median"]) if low["median"] else math.nan,
+            }
+        )
+    columns = ["task", "backend", "algo", "h_min", "h_max", "median_h_min", "median_h_max", "growth_factor"]
+    return pd.DataFrame(rows, columns=columns)
+
+
+def time_split(run: RunRecord) -> dict[str, float]:
+    """Seconds of each TIME_PARTS stem summed over the run's epochs.
+
+    Epochs that logged actor/critic/lambda update times count them; epochs that did not (runs from before
+    the split was logged) count their whole ``update_s`` as ``update_unsplit``. ``other`` is the rest of
+    the wall time (rollout bookkeeping, logging, checkpoints).
+    """
+    m = run.metrics
+    split = _column(m, "actor_update_s").notna()
+    seconds = {
+        "sim_forward": float(_column(m, "sim_forward_s").sum()),
+        "backward": float(_column(m, "backward_s").sum()),
+        "actor_update": float(_column(m, "actor_update_s")[split].sum()),
+        "critic_update": float(_column(m, "critic_update_s")[split].sum()),
+        "lambda_update": float(_column(m, "lambda_update_s")[split].sum()),
+        "update_unsplit": float(_column(m, "update_s")[~split].sum()),
+    }
+    seconds["other"] = max(run.wall_s - sum(seconds.values()), 0.0) if np.isfinite(run.wall_s) else math.nan
+    return seconds
+
+
+def wall_time_table(runs: list[RunRecord]) -> pd.DataFrame:
+    """Per run: wall minutes, seconds per epoch and the split of the wall time, in minutes and fractions."""
+    rows = []
+    for members in _by_group(r for r in runs if r.epochs).values():
+        for run in members:
+            seconds = time_split(run)
+            row = {
+                "run": run.path.name,
+                "task": run.task,
+                "backend": run.backend,
+                "algo": run.algo,
+                "horizon": run.horizon,
+                "seed": run.seed,
+                "epochs": run.epochs,
+                "env_steps": run.env_steps,
+                "wall_min": run.wall_s / 60.0,
+                "s_per_epoch": run.wall_s / run.epochs,
+            }
+            row.update({f"{stem}_min": seconds[stem] / 60.0 for stem, _, _ in TIME_PARTS})
+            row.update(
+                {f"{stem}_frac": seconds[stem] / run.wall_s if run.wall_s else math.nan for stem, _, _ in TIME_PARTS}
+            )
+            rows.append(row)
+    columns = ["run", "task", "backend", "algo", "horizon", "seed", "epochs", "env_steps", "wall_min", "s_per_epoch"]
+    columns += [f"{stem}_{unit}" for unit in ("min", "frac") for stem, _, _ in TIME_PARTS]
+    return pd.DataFrame(rows, columns=columns)
+
+
+def throughput_table(checks: list[CheckRecord]) -> pd.DataFrame:
+    """Per throughput check file: env-steps/s forward, forward+backward, and of the bare engine."""
+    rows = []
+    for check in checks:
+        if check.kind != "throughput":
+            continue
+        r = check.result
+        measured = r.get("forward_backward_steps_per_s")
+        estimated = r.get("forward_backward_steps_per_s_estimated")  # `throughput --grad-cost-only`
+        rows.append(
+            {
+                "file": check.path.name,
+                "backend": r.get("backend"),
+                "task": r.get("task"),
+                "num_envs": r.get("num_envs"),
+                "horizon": r.get("horizon"),
+                "windows": r.get("windows"),
+                "forward_steps_per_s": r.get("forward_steps_per_s"),
+                "forward_backward_steps_per_s": measured if measured is not None else estimated,
+                "forward_backward_estimated": measured is None and estimated is not None,
+                "bare_forward_steps_per_s": r.get("bare_forward_steps_per_s"),
+                "bare_engine_steps_per_s": r.get("bare_engine_steps_per_s"),
+                "forward_overhead_ratio": r.get("forward_overhead_ratio"),
+                "overhead_ratio": r.get("overhead_ratio"),
+                "gradient_cost_factor": r.get("gradient_cost_factor"),
+            }
+        )
+    columns = [
+        "file",
+        "backend",
+        "task",
+        "num_envs",
+        "horizon",
+        "windows",
+        "forward_steps_per_s",
+        "forward_backward_steps_per_s",
+        "forward_backward_estimated",
+        "bare_forward_steps_per_s",
+        "bare_engine_steps_per_s",
+        "forward_overhead_ratio",
+        "overhead_ratio",
+        "gradient_cost_factor",
+    ]
+    rows.sort(key=lambda r: (_rank(str(r["task"])), _rank(str(r["backend"])), r["num_envs"] or 0, r["file"]))
+    return pd.DataFrame(rows, columns=columns)
+
+
+BACKEND_MEASURES = ("seeds", "epochs", "env_steps", "iqm_final", "wall_min_mean", "s_per_epoch_mean")
+
+
+def backends_table(runs: list[RunRecord]) -> pd.DataFrame:
+    """One row per (task, algo, horizon) trained on at least 2 backends, columns ``BACKEND_MEASURE`` per backend.
+
+    ``seeds`` counts every run (wall time is known without an evaluation); ``iqm_final`` rests on the
+    evaluated ones.
+    """
+    long_rows = []
+    for (task, horizon, algo, backend), members in _group_runs(
+        (r for r in runs if r.epochs), lambda r: (r.task, r.horizon, r.algo, r.backend)
+    ).items():
+        evaluated = [r.final_return for r in members if r.evaluation is not None]
+        long_rows.append(
+            {
+                "task": task,
+                "algo": algo,
+                "horizon": horizon,
+                "backend": backend,
+                "seeds": len(members),
+                "epochs": _value_or_range(r.epochs for r in members),
+                "env_steps": _value_or_range(r.env_steps for r in members),
+                "iqm_final": iqm(evaluated),
+                "wall_min_mean": float(np.mean([r.wall_s for r in members])) / 60.0,
+                "s_per_epoch_mean": float(np.mean([r.wall_s / r.epochs for r in members])),
+            }
+        )
+    long = pd.DataFrame(long_rows, columns=["task", "algo", "horizon", "backend", *BACKEND_MEASURES])
+    backends = sorted(long["backend"].unique(), key=_rank)
+    rows = []
+    for (task, algo, horizon), sub in long.groupby(["task", "algo", "horizon"], sort=False):
+        if sub["backend"].nunique() < 2:
+            continue
+        row = {"task": task, "algo": algo, "horizon": horizon}
+        for backend in backends:
+            match = sub[sub["backend"] == backend]
+            for measure in BACKEND_MEASURES:
+                row[f"{backend}_{measure}"] = match[measure].iloc[0] if len(match) else None
+        rows.append(row)
+    columns = ["task", "algo", "horizon"] + [f"{b}_{m}" for b in backends for m in BACKEND_MEASURES]
+    return pd.DataFrame(rows, columns=columns)
+
+
+def _protocol(payload: dict) -> tuple:
+    return tuple(payload.get(k) for k in ("seeds", "num_envs", "max_steps"))
+
+
+def sim_to_sim_table(runs: list[RunRecord]) -> pd.DataFrame:
+    """Per run and other backend: the final policy's return where it trained and where it was evaluated.
+
+    The return on the training backend comes from the file written with the same protocol where there is
+    one (the suite writes ``sim2sim_on_<training backend>.json`` beside ``sim2sim_on_<other>.json``: same
+    eval seeds, envs and step cap), else from eval.json's final policy; ``own_source`` names it and
+    ``same_protocol`` says whether the two evaluations used the same seeds, envs and step cap.
+    """
+    rows = []
+    for run in sorted(runs, key=lambda r: (r.task, _rank(r.algo), r.horizon, r.seed, r.backend)):
+        for name, other in run.cross_evaluations.items():
+            evaluated_on, trained_on = other["backend"], other.get("trained_on", run.backend)
+            if evaluated_on == trained_on:
+                continue  # the same-protocol evaluation on the training backend: a reference, not a row
+            prefix = next(p for p in SIM_TO_SIM_PREFIXES if name.startswith(p))
+            own_name = f"{prefix}{trained_on}.json"
+            if own_name in run.cross_evaluations:
+                own, own_source = run.cross_evaluations[own_name], own_name
+            elif run.evaluation is not None:
+                own, own_source = run.evaluation, "eval.json"
+            else:
+                own, own_source = None, None
+            own_return = own["final"]["mean_return"] if own else math.nan
+            other_return = other["final"]["mean_return"]
+            rows.append(
+                {
+                    "run": run.path.name,
+                    "task": run.task,
+                    "algo": run.algo,
+                    "horizon": run.horizon,
+                    "seed": run.seed,
+                    "trained_on": trained_on,
+                    "evaluated_on": evaluated_on,
+                    "own_return": own_return,
+                    "other_return": other_return,
+                    "gap": other_return - own_return,
+                    "own_source": own_source,
+                    "other_source": name,
+                    "same_protocol": _protocol(own) == _protocol(other) if own else None,
+                }
+            )
+    columns = ["run", "task", "algo", "horizon", "seed", "trained_on", "evaluated_on", "own_return"]
+    columns += ["other_return", "gap", "own_source", "other_source", "same_protocol"]
+    return pd.DataFrame(rows, columns=columns)
+
+
+def sim_to_sim_mean_table(per_run: pd.DataFrame) -> pd.DataFrame:
+    """Mean over seeds of :func:`sim_to_sim_table` per (task, algo, horizon, trained_on, evaluated_on)."""
+    keys = ["task", "algo", "horizon", "trained_on", "evaluated_on"]
+    columns = [*keys, "seeds", "own_return_mean", "other_return_mean", "gap_mean", "gap_std"]
+    if per_run.empty:
+        return pd.DataFrame(columns=columns)
+    grouped = per_run.groupby(keys, sort=False)
+    frame = grouped.agg(
+        seeds=("seed", "size"),
+        own_return_mean=("own_return", "mean"),
+        other_return_mean=("other_return", "mean"),
+        gap_mean=("gap", "mean"),
+        gap_std=("gap", "std"),
+    ).reset_index()
+    return frame[columns]
+
+
+def landscape_table(runs: list[RunRecord]) -> pd.DataFrame:
+    """Per run with a landscape.json: grid, span and the roughness of both actor losses, and their ratio."""
+    rows = []
+    for run in sorted(runs, key=lambda r: (r.task, r.backend, _rank(r.algo), r.horizon, r.seed)):
+        land = run.landscape
+        if land is None:
+            continue
+        rough = land.get("roughness") or {}
+        h_step, td_lambda = rough.get("h_step"), rough.get("td_lambda")
+        ratio = h_step / td_lambda if h_step is not None and td_lambda else None
+        rows.append(
+            {
+                "run": run.path.name,
+                "task": land.get("task", run.task),
+                "backend": land.get("backend", run.backend),
+                "algo": land.get("algo", run.algo),
+                "horizon": land.get("horizon", run.horizon),
+                "seed": run.seed,
+                "grid": land.get("grid"),
+                "span": land.get("span"),
+                "lambda": land.get("lambda"),
+                "roughness_h_step": h_step,
+                "roughness_td_lambda": td_lambda,
+                "ratio_h_step_over_td_lambda": ratio,
+            }
+        )
+    columns = ["run", "task", "backend", "algo", "horizon", "seed", "grid", "span", "lambda"]
+    columns += ["roughness_h_step", "roughness_td_lambda", "ratio_h_step_over_td_lambda"]
+    return pd.DataFrame(rows, columns=columns)
+
+
+def _pairs_summary(pairs: dict, fields: tuple[str, str]) -> tuple[float | None, float | None]:
+    """(min of fields[0], max of fields[1]) over every comparison nested in ``pairs``."""
+    cosines, diffs = [], []
+
+    def walk(node):
+        if isinstance(node, dict):
+            if fields[0] in node and isinstance(node[fields[0]], int | float):
+                cosines.append(node[fields[0]])
+            if fields[1] in node and isinstance(node[fields[1]], int | float):
+                diffs.append(node[fields[1]])
+            for value in node.values():
+                walk(value)
+
+    walk(pairs)
+    return (min(cosines) if cosines else None), (max(diffs) if diffs else None)
+
+
+_GRADCHECK_FIELDS = (
+    ("tolerance", "tolerance"),
+    ("action_rel_error", "actions"),
+    ("state_rel_error", "initial state"),
+    ("steps", "steps"),
+    ("segment", "segment"),
+)
+
+
+def check_summary(check: CheckRecord) -> str:
+    """One line of a check's key numbers."""
+    r = check.result
+    if check.kind == "gradcheck":
+        parts = [f"max rel. error {_fmt(r.get('max_rel_error'))}"]
+        parts += [f"{label} {_fmt(r[key])}" for key, label in _GRADCHECK_FIELDS if r.get(key) is not None]
+        return ", ".join(parts)
+    if check.kind == "throughput":
+        fb = r.get("forward_backward_steps_per_s", r.get("forward_backward_steps_per_s_estimated"))
+        return f"{_fmt(r.get('forward_steps_per_s'))} env-steps/s forward, {_fmt(fb)} with gradients"
+    if check.kind == "crosscheck":
+        cosine, rel_diff = _pairs_summary(r.get("segments", {}), ("cosine", "rel_diff"))
+        return f"gradients across backends: min cosine {_fmt(cosine)}, max rel. difference {_fmt(rel_diff)}"
+    if check.kind == "forward-crosscheck":
+        _, gap = _pairs_summary(r.get("pairs", {}), ("", "com_distance_max"))
+        return f"forward rollouts across backends: max centre-of-mass distance {_fmt(gap)} m, {r.get('steps')} steps"
+    return "result keys: " + ", ".join(sorted(r)[:8])
+
+
+def _check_backends(check: CheckRecord) -> str | None:
+    r = check.result
+    if r.get("backend"):
+        return str(r["backend"])
+    pairs = r.get("pairs") or next(iter((r.get("segments") or {}).values()), {}).get("pairs", {})
+    names = sorted({name for pair in pairs for name in pair.split(" vs ")})
+    return ", ".join(names) or None
+
+
+def checks_table(checks: list[CheckRecord]) -> pd.DataFrame:
+    """Every check file in one line: kind, task, backend(s), pass/fail where the check decides one, key numbers."""
+    rows = []
+    for check in sorted(checks, key=lambda c: (c.kind, str(c.result.get("task")), c.path.name)):
+        passed = check.result.get("passed", check.result.get("ok"))
+        rows.append(
+            {
+                "file": check.path.name,
+                "kind": check.kind,
+                "task": check.result.get("task"),
+                "backend": _check_backends(check),
+                "passed": passed if isinstance(passed, bool) else None,
+                "summary": check_summary(check),
+                "created_utc": check.provenance.get("created_utc"),
+                "commit": check.provenance.get("git_commit"),
+            }
+        )
+    columns = ["file", "kind", "task", "backend", "passed", "summary", "created_utc", "commit"]
+    return pd.DataFrame(rows, columns=columns)
+
+
+# -- Markdown and CSV -----------------------------------------------------------------------------
+def _is_missing(value) -> bool:
+    """None, NaN (any float type), pd.NA or NaT."""
+    try:
+        return value is None or bool(pd.isna(value))
+    except (TypeError, ValueError):  # a list or array cell
+        return False
+
+
+def _fmt(value) -> str:
+    """A table cell: n/a for missing, yes/no for booleans, about 4 significant digits for floats."""
+    if _is_missing(value):
+        return "n/a"
+    if isinstance(value, bool | np.bool_):
+        return "yes" if value else "no"
+    if isinstance(value, int | np.integer):
+        return str(int(value))
+    if isinstance(value, float | np.floating):
+        magnitude = abs(float(value))
+        if magnitude == 0.0:
+            return "0"
+        if magnitude >= 1e6 or magnitude < 1e-3:
+            return f"{value:.3g}"
+        return f"{value:.1f}" if magnitude >= 100 else f"{value:.3g}" if magnitude < 1 else f"{value:.2f}"
+    return str(value)
+
+
+def _ci(low, high) -> str:
+    return "n/a" if _is_missing(low) or _is_missing(high) else f"[{_fmt(low)}, {_fmt(high)}]"
+
+
+def _verdict(passed) -> str:
+    return "n/a" if _is_missing(passed) else ("PASS" if passed else "FAIL")
+
+
+def _base_cell(row: pd.Series) -> str:
+    if not isinstance(row["base"], str):
+        return "-"
+    return row["base"] if not _is_missing(row["base_seeds"]) else f"{row['base']} (no runs)"
+
+
+def _pct(value) -> str:
+    return "n/a" if _is_missing(value) else f"{100.0 * value:.0f}%"
+
+
+ColumnSpec = list[tuple[str, str | Callable[[pd.Series], str]]]  # (header, column name or row -> cell)
+
+
+@dataclass
+class Section:
+    """One table: its rows, how the Markdown shows them, and the suffix of its CSV (``""``: ``NAME.csv``)."""
+
+    frame: pd.DataFrame
+    columns: ColumnSpec
+    heading: str | None = None
+    csv_suffix: str = ""
+    empty: str = "none"
+
+
+@dataclass
+class Table:
+    name: str
+    title: str
+    rests_on: str
+    sections: list[Section]
+    notes: list[str] = field(default_factory=list)
+    input_commits: list[str] = field(default_factory=list)
+
+
+def markdown_rows(frame: pd.DataFrame, columns: ColumnSpec) -> list[str]:
+    """A Markdown table of ``frame`` as ``columns`` say."""
+    lines = ["| " + " | ".join(h for h, _ in columns) + " |", "|" + "---|" * len(columns)]
+    for _, row in frame.iterrows():
+        cells = [how(row) if callable(how) else _fmt(row[how]) for _, how in columns]
+        lines.append("| " + " | ".join(cell.replace("|", "/") for cell in cells) + " |")
+    return lines
+
+
+def header_lines(header: dict) -> list[str]:
+    """The provenance paragraph of every Markdown table: command, commit, UTC time, packages, machine."""
+    commit = header.get("commit") or header.get("git_commit") or "unknown"
+    profile = f" (profile `{header['profile']}`)" if header.get("profile") else ""
+    spec = f" from `{header['spec']}`" if header.get("spec") else ""
+    lines = [
+        f"Made by: `{header.get('command', 'unknown')}`{profile}{spec}, commit `{commit}`, "
+        f"{header.get('created_utc', 'time unknown')}."
+    ]
+    packages = header.get("packages") or {}
+    listed = ", ".join(f"{name} {version or '(not installed)'}" for name, version in packages.items())
+    python = f"; Python {header['python']}" if header.get("python") else ""
+    lines.append(f"Packages: {listed or 'not recorded'}{python}.")
+    lines.append(f"Machine: {machine_text(header.get('machine') or {})}.")
+    return lines
+
+
+def machine_text(machine: dict) -> str:
+    if not machine:
+        return "not recorded"
+    parts = [str(machine.get("cpu_model", "CPU unknown"))]
+    if machine.get("cpu_count") is not None:
+        parts.append(f"{machine['cpu_count']} CPUs")
+    if machine.get("platform"):
+        parts.append(str(machine["platform"]))
+    if machine.get("torch_num_threads") is not None:
+        parts.append(f"torch threads {machine['torch_num_threads']}")
+    parts.append(f"OMP_NUM_THREADS={machine.get('OMP_NUM_THREADS')}")
+    parts.append("GPUs: " + (", ".join(machine.get("gpus") or []) or "none"))
+    return ", ".join(parts)
+
+
+def _commits(values: Iterable[str | None]) -> list[str]:
+    counts = Counter(v or "unknown" for v in values)
+    return [f"{commit} ({n})" for commit, n in counts.most_common()]
+
+
+def markdown_document(table: Table, header: dict) -> str:
+    lines = [f"# {table.title}", "", *header_lines(header), "", table.rests_on]
+    if table.input_commits:
+        lines[-1] += f" Inputs made at commit(s), with how many files: {', '.join(table.input_commits)}."
+    for note in table.notes:
+        lines += ["", note]
+    for section in table.sections:
+        lines.append("")
+        if section.heading:
+            lines += [f"## {section.heading}", ""]
+        if section.frame.empty:
+            lines.append(f"No rows: {section.empty}.")
+        else:
+            lines += markdown_rows(section.frame, section.columns)
+    return "\n".join(lines) + "\n"
+
+
+def write_table(table: Table, out_dir: Path, header: dict) -> list[Path]:
+    """``NAME.md``, and per section ``NAME[SUFFIX].csv`` with ``NAME[SUFFIX].provenance.json`` beside it."""
+    written = [atomic_write_text(out_dir / f"{table.name}.md", markdown_document(table, header))]
+    for section in table.sections:
+        stem = f"{table.name}{section.csv_suffix}"
+        csv_text = section.frame.to_csv(index=False, lineterminator="\n")
+        written.append(atomic_write_text(out_dir / f"{stem}.csv", csv_text))
+        sidecar = {
+            "table": stem,
+            "csv": f"{stem}.csv",
+            "markdown": f"{table.name}.md",
+            "title": table.title + (f": {section.heading}" if section.heading else ""),
+            "rests_on": table.rests_on,
+            "notes": table.notes,
+            "columns": list(section.frame.columns),
+            "input_commits": table.input_commits,
+            "provenance": header,
+        }
+        written.append(write_json(out_dir / f"{stem}.provenance.json", sidecar))
+    return written
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}" + ("" if n == 1 else "s")
+
+
+def _range_text(values: Iterable) -> str:
+    distinct = sorted(set(values))
+    if not distinct:
+        return "n/a"
+    return f"{distinct[0]:,}" if len(distinct) == 1 else f"{distinct[0]:,}-{distinct[-1]:,}"
+
+
+def rests_on_runs(runs: list[RunRecord], what: str = "training runs") -> str:
+    """The sentence saying what a table's numbers rest on: runs, groups, seeds, epochs, env steps."""
+    if not runs:
+        return f"Rests on no {what}."
+    seeds_per_group = Counter(r.group for r in runs).values()
+    return (
+        f"Rests on {len(runs)} {what} in {len(seeds_per_group)} (task, backend, algo, horizon) groups with "
+        f"{_range_text(seeds_per_group)} training seeds each, {_range_text(r.epochs for r in runs)} epochs and "
+        f"{_range_text(r.env_steps for r in runs)} env steps per run."
+    )
+
+
+# -- the tables as documents ----------------------------------------------------------------------
+def _key_columns(*names: str) -> ColumnSpec:
+    labels = {"horizon": "h", "env_steps": "env steps per run"}
+    return [(labels.get(n, n), n) for n in names]
+
+
+def _run_commits(runs: Iterable[RunRecord]) -> list[str]:
+    return _commits(r.commit for r in runs)
+
+
+def returns_document(runs: list[RunRecord]) -> Table:
+    """Final evaluation returns: IQM, CI and improvement over the base algorithm."""
+    evaluated = [r for r in runs if r.evaluation is not None]
+    returns = returns_table(runs)
+    eval_protocol = ""
+    if evaluated:
+        eval_protocol = (
+            f" Each run's final (and initial) policy is evaluated deterministically over "
+            f"{_range_text(r.evaluation.get('seeds') or 0 for r in evaluated)} eval seeds x "
+            f"{_range_text(r.evaluation.get('num_envs') or 0 for r in evaluated)} envs, first episode of each env."
+        )
+    return Table(
+        "returns",
+        "Final evaluation return per algorithm",
+        rests_on_runs(evaluated, "evaluated training runs") + eval_protocol,
+        [
+            Section(
+                returns,
+                _key_columns("task", "backend", "algo", "horizon", "seeds", "epochs", "env_steps")
+                + [
+                    ("IQM final", "iqm_final"),
+                    ("95% CI", lambda r: _ci(r["iqm_ci_low"], r["iqm_ci_high"])),
+                    ("mean ± std", lambda r: f"{_fmt(r['mean_final'])} ± {_fmt(r['std_final'])}"),
+                    ("initial (mean)", "mean_initial"),
+                    ("vs base", _base_cell),
+                    ("IQM improvement", "improvement_iqm"),
+                    ("improvement 95% CI", lambda r: _ci(r["improvement_ci_low"], r["improvement_ci_high"])),
+                ],
+                empty="no run has an eval.json",
+            )
+        ],
+        [
+            "IQM: interquartile mean over training seeds (`scipy.stats.trim_mean(x, 0.25)`, rliable's "
+            "definition), each seed contributing its eval.json final mean return; under 4 seeds it trims "
+            "nothing and is the mean. 95% CI: percentile bootstrap over seeds, "
+            f"{BOOTSTRAP_RESAMPLES} resamples, `np.random.default_rng({BOOTSTRAP_SEED})` "
+            "(`scipy.stats.bootstrap`; one task and backend per row is one stratum, so rliable's stratified "
+            "bootstrap is this plain one). n/a under 2 seeds. mean ± std: sample std (n - 1).",
+            "IQM improvement: IQM(algo) - IQM(base) at the same task, backend and horizon (base of shac-tdfixed "
+            "and shac-tdadpt is shac, of sapo-tdfixed and sapo-tdadpt sapo), 95% CI from a two-sample unpaired "
+            "percentile bootstrap (each algorithm's seeds resampled on their own), n/a under 2 seeds on a side.",
+            "Runs without eval.json (unfinished) are left out of this table.",
+        ],
+        _run_commits(evaluated),
+    )
+
+
+def grad_variance_document(runs: list[RunRecord]) -> Table:
+    """Actor-gradient variance per horizon, and its growth from the shortest to the longest."""
+    trained = [r for r in runs if r.epochs]
+    per_h = grad_variance_table(runs)
+    return Table(
+        "grad_variance_vs_h",
+        "Actor-gradient variance against the horizon h",
+        rests_on_runs(trained),
+        [
+            Section(
+                per_h,
+                _key_columns("task", "backend", "algo", "horizon", "seeds")
+                + [("epochs pooled", "values"), ("median", "median"), ("Q1", "q1"), ("Q3", "q3")],
+                empty="no run has metrics",
+            ),
+            Section(
+                grad_variance_growth_table(per_h),
+                _key_columns("task", "backend", "algo")
+                + [
+                    ("h min", "h_min"),
+                    ("h max", "h_max"),
+                    ("median at h min", "median_h_min"),
+                    ("median at h max", "median_h_max"),
+                    ("growth factor", "growth_factor"),
+                ],
+                heading="Growth from the shortest to the longest horizon",
+                csv_suffix="_growth",
+                empty="no algorithm has runs at more than one horizon",
+            ),
+        ],
+        [
+            "actor_grad_var of every epoch of every seed pooled (NaN epochs dropped); median and quartiles "
+            "(numpy's linear interpolation). Growth factor: median at the longest h / median at the shortest."
+        ],
+        _run_commits(trained),
+    )
+
+
+def wall_time_document(runs: list[RunRecord]) -> Table:
+    """Wall time per run and its split."""
+    trained = [r for r in runs if r.epochs]
+    wall = wall_time_table(runs)
+    split_columns = [
+        (label, lambda r, s=stem: f"{_fmt(r[s + '_min'])} ({_pct(r[s + '_frac'])})") for stem, label, _ in TIME_PARTS
+    ]
+    return Table(
+        "wall_time",
+        "Wall time of every training run and where it goes",
+        rests_on_runs(trained),
+        [
+            Section(
+                wall,
+                _key_columns("run", "task", "backend", "algo", "horizon", "seed", "epochs")
+                + [("wall min", "wall_min"), ("s / epoch", "s_per_epoch")]
+                + split_columns,
+                empty="no run has metrics",
+            )
+        ],
+        [
+            "Minutes summed over epochs (share of the wall time in brackets). Actor update includes gradient "
+            "clipping, the variance estimate and SAPO's temperature step. Epochs logged before the update "
+            "was split count their whole update as 'update (not split)'. Other: the rest of the wall time "
+            "(rollout bookkeeping, logging, checkpoints). Evaluation is not part of the wall time."
+        ],
+        _run_commits(trained),
+    )
+
+
+def throughput_document(checks: list[CheckRecord]) -> Table:
+    """env-steps/s of the throughput checks."""
+    throughput_checks = [c for c in checks if c.kind == "throughput"]
+    return Table(
+        "throughput",
+        "Simulation throughput per backend and task",
+        f"Rests on {_count(len(throughput_checks), 'throughput check file')}.",
+        [
+            Section(
+                throughput_table(checks),
+                _key_columns("task", "backend", "num_envs", "horizon", "windows", "file")
+                + [
+                    ("forward env-steps/s", "forward_steps_per_s"),
+                    (
+                        "forward+backward env-steps/s",
+                        lambda r: (
+                            _fmt(r["forward_backward_steps_per_s"])
+                            + (" (estimated)" if r["forward_backward_estimated"] else "")
+                        ),
+                    ),
+                    ("bare engine forward", "bare_forward_steps_per_s"),
+                    ("bare engine forward+backward", "bare_engine_steps_per_s"),
+                    ("adapter/bare time, forward", "forward_overhead_ratio"),
+                    ("adapter/bare time, forward+backward", "overhead_ratio"),
+                    ("gradient cost factor", "gradient_cost_factor"),
+                ],
+                empty="no throughput check",
+            )
+        ],
+        [
+            "env-steps/s = envs x steps / seconds, best of the timed windows (harness/throughput.py). "
+            "adapter/bare: time through this project's adapter over the engine's own loop (1.0 = no overhead). "
+            "Estimated: `throughput --grad-cost-only` (finite-difference worlds timed, not a full step)."
+        ],
+        _commits(c.provenance.get("git_commit") for c in throughput_checks),
+    )
+
+
+def backends_document(runs: list[RunRecord]) -> Table:
+    """One algorithm, task and horizon on every backend side by side."""
+    trained = [r for r in runs if r.epochs]
+    wide = backends_table(runs)
+    last = "_" + BACKEND_MEASURES[-1]
+    backend_names = [c[: -len(last)] for c in wide.columns if c.endswith(last)]
+    by_backend: ColumnSpec = []
+    for b in backend_names:
+        by_backend += [
+            (f"{b} seeds", f"{b}_seeds"),
+            (f"{b} epochs", f"{b}_epochs"),
+            (f"{b} env steps", f"{b}_env_steps"),
+            (f"{b} IQM final", f"{b}_iqm_final"),
+            (f"{b} wall min", f"{b}_wall_min_mean"),
+            (f"{b} s / epoch", f"{b}_s_per_epoch_mean"),
+        ]
+    return Table(
+        "backends",
+        "The same algorithm, task and horizon on every backend",
+        rests_on_runs(trained),
+        [
+            Section(
+                wide,
+                _key_columns("task", "algo", "horizon") + by_backend,
+                empty="no (task, algo, horizon) has runs on two or more backends",
+            )
+        ],
+        [
+            "Per backend: training seeds (runs), epochs and env steps per run, IQM of the final eval return "
+            "over the evaluated seeds, mean wall minutes per run and mean seconds per epoch."
+        ],
+        _run_commits(trained),
+    )
+
+
+def sim_to_sim_document(runs: list[RunRecord]) -> Table:
+    """Policies evaluated on another backend than they trained on."""
+    s2s = sim_to_sim_table(runs)
+    s2s_runs = [r for r in runs if any(e["backend"] != e["trained_on"] for e in r.cross_evaluations.values())]
+    return Table(
+        "sim_to_sim",
+        "Sim-to-sim: policies evaluated on another backend than they trained on",
+        rests_on_runs(s2s_runs) + f" {_count(len(s2s), 'cross-backend evaluation')}.",
+        [
+            Section(
+                s2s,
+                _key_columns("task", "algo", "horizon", "seed", "trained_on", "evaluated_on")
+                + [
+                    ("return where trained", "own_return"),
+                    ("return on other", "other_return"),
+                    ("gap (other - own)", "gap"),
+                    ("own from", "own_source"),
+                    ("same protocol", "same_protocol"),
+                ],
+                empty="no run has an eval_on_*.json or sim2sim_on_*.json",
+            ),
+            Section(
+                sim_to_sim_mean_table(s2s),
+                _key_columns("task", "algo", "horizon", "trained_on", "evaluated_on", "seeds")
+                + [
+                    ("mean return where trained", "own_return_mean"),
+                    ("mean return on other", "other_return_mean"),
+                    ("mean gap", "gap_mean"),
+                    ("gap std", "gap_std"),
+                ],
+                heading="Mean over seeds",
+                csv_suffix="_mean",
+                empty="no cross-backend evaluation",
+            ),
+        ],
+        [
+            "Return of the final policy (deterministic). Where trained: from the evaluation written with the "
+            "same protocol on the training backend when there is one (sim2sim_on_<training backend>.json), "
+            "else eval.json; 'same protocol' says whether both used the same eval seeds, envs and step cap."
+        ],
+        _commits(e.get("provenance", {}).get("git_commit") for r in runs for e in r.cross_evaluations.values()),
+    )
+
+
+def landscape_document(runs: list[RunRecord]) -> Table:
+    """Roughness of the h-step and TD-lambda actor losses."""
+    landscapes = [r for r in runs if r.landscape is not None]
+    return Table(
+        "landscape",
+        "Roughness of the actor-loss landscapes: h-step vs TD-lambda return",
+        rests_on_runs(landscapes, "runs with a landscape.json"),
+        [
+            Section(
+                landscape_table(runs),
+                _key_columns("task", "backend", "algo", "horizon", "seed", "grid", "span", "lambda")
+                + [
+                    ("roughness h-step", "roughness_h_step"),
+                    ("roughness TD-lambda", "roughness_td_lambda"),
+                    ("ratio", "ratio_h_step_over_td_lambda"),
+                ],
+                empty="no run has a landscape.json",
+            )
+        ],
+        [
+            "Roughness: total variation of the loss surface per grid line over its range (harness/landscape.py; "
+            "0.5 for a plane, >> 1 for a jagged surface). Ratio: h-step / TD-lambda (> 1: TD-lambda smoother)."
+        ],
+        _commits((r.landscape.get("provenance") or {}).get("git_commit") for r in landscapes),
+    )
+
+
+def checks_document(checks: list[CheckRecord]) -> Table:
+    """Every check file in one line."""
+    return Table(
+        "checks",
+        "Checks: gradients, cross-backend agreement, throughput",
+        f"Rests on {_count(len(checks), 'check file')}.",
+        [
+            Section(
+                checks_table(checks),
+                [
+                    ("file", "file"),
+                    ("kind", "kind"),
+                    ("task", "task"),
+                    ("backend", "backend"),
+                    ("passed", lambda r: _verdict(r["passed"])),
+                    ("key numbers", "summary"),
+                    ("made (UTC)", "created_utc"),
+                ],
+                empty="no check file",
+            )
+        ],
+        [
+            "passed: the check's own verdict where it gives one (gradcheck against its tolerance); crosschecks "
+            "report agreement numbers without a verdict (n/a)."
+        ],
+        _commits(c.provenance.get("git_commit") for c in checks),
+    )
+
+
+def build_tables(runs: list[RunRecord], checks: list[CheckRecord]) -> list[Table]:
+    """Every table of the report, computed (nothing written), in the order index.md lists them."""
+    return [
+        returns_document(runs),
+        grad_variance_document(runs),
+        wall_time_document(runs),
+        throughput_document(checks),
+        backends_document(runs),
+        sim_to_sim_document(runs),
+        landscape_document(runs),
+        checks_document(checks),
+    ]
+
+
+# -- plots ----------------------------------------------------------------------------------------
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")  # files only, no display
+    import matplotlib.pyplot as plt
+    import seaborn as sns
+
+    sns.set_theme(style="whitegrid", context="notebook")
+    return plt, sns
+
+
+def _save_figure(fig, path: Path) -> Path:
+    """Write a PNG through a temporary file and a rename, so an interruption never leaves half an image."""
+    plt, _ = _pyplot()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".png")
+    os.close(fd)
+    try:
+        fig.savefig(tmp, dpi=100, bbox_inches="tight")
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    finally:
+        plt.close(fig)
+    return path
+
+
+def _algo_palette(algos: Iterable[str]) -> dict[str, tuple]:
+    """The same colour for an algorithm in every plot."""
+    _, sns = _pyplot()
+    colours = sns.color_palette("tab10", 10)
+    fixed = {"shac": colours[0], "shac-tdfixed": colours[9], "shac-tdadpt": colours[2]}
+    fixed |= {"sapo": colours[1], "sapo-tdfixed": colours[3], "sapo-tdadpt": colours[4]}
+    spare = iter(colours[5:9] * 10)
+    return {algo: fixed.get(algo) or next(spare) for algo in sorted(set(algos), key=_rank)}
+
+
+def curve_horizons(runs: list[RunRecord]) -> dict[tuple[str, str], int]:
+    """Per (task, backend) the horizon with the most runs (the shortest on a tie): the one curves show."""
+    counts = Counter((r.task, r.backend, r.horizon) for r in runs if r.epochs)
+    chosen: dict[tuple[str, str], tuple[int, int]] = {}
+    for (task, backend, horizon), n in counts.items():
+        best = chosen.get((task, backend))
+        if best is None or (n, -horizon) > (best[1], -best[0]):
+            chosen[(task, backend)] = (horizon, n)
+    return {key: horizon for key, (horizon, _) in sorted(chosen.items())}
+
+
+CURVE_MEASURES = {
+    "per_step": "reward per env step (training windows)",
+    "episode": "training episode return (running mean)",
+}
+
+
+def _training_return(metrics: pd.DataFrame) -> tuple[pd.Series, str]:
+    """The mean task reward per env step of each training window where logged (every epoch has one, also
+    before the first 1000-step episode ends), else (runs older than that metric) the running average of
+    finished training episodes or the last finished episode's return; and which of the two it is."""
+    per_step = _column(metrics, "train_reward_per_step")
+    if per_step.notna().any():
+        return per_step, "per_step"
+    average = _column(metrics, "train_episode_return_avg")
+    return (average if average.notna().any() else _column(metrics, "train_episode_return")), "episode"
+
+
+def learning_curve_frame(runs: list[RunRecord], x: str) -> pd.DataFrame:
+    """Training return of every run on a common x grid per (task, backend, horizon): ``x`` is ``env_steps``
+    or ``wall_min``. Only the runs at :func:`curve_horizons`; no extrapolation (NaN outside a run's range),
+    so the end of a band rests on the runs that got there."""
+    horizons = curve_horizons(runs)
+    chosen = [r for r in runs if r.epochs and horizons.get((r.task, r.backend)) == r.horizon]
+    rows = []
+    for (task, backend, horizon), members in _group_runs(chosen, lambda r: (r.task, r.backend, r.horizon)).items():
+        series = []
+        for run in members:
+            xs = _column(run.metrics, "env_steps") if x == "env_steps" else _column(run.metrics, "wall_s") / 60.0
+            ys, measure = _training_return(run.metrics)
+            ok = (xs.notna() & ys.notna()).to_numpy()
+            if ok.any():
+                series.append((run, xs.to_numpy()[ok], ys.to_numpy()[ok], measure))
+        if not series:
+            continue
+        # one measure per panel: where some runs log the per-step reward, the others (older) are left out
+        measures = {m for *_, m in series}
+        measure = "per_step" if "per_step" in measures else "episode"
+        series = [(run, xs, ys) for run, xs, ys, m in series if m == measure]
+        grid = np.linspace(0.0, max(xs.max() for _, xs, _ in series), CURVE_POINTS)
+        for run, xs, ys in series:
+            inside = (grid >= xs.min()) & (grid <= xs.max())
+            for gx, gy in zip(grid[inside], np.interp(grid[inside], xs, ys), strict=True):
+                rows.append(
+                    {
+                        "panel": f"{task} / {backend}, h={horizon}"
+                        + ("" if measure == "per_step" else " (episode returns)"),
+                        "measure": measure,
+                        "task": task,
+                        "backend": backend,
+                        "algo": run.algo,
+                        "seed": run.seed,
+                        x: gx,
+                        "return": gy,
+                    }
+                )
+    return pd.DataFrame(rows, columns=["panel", "measure", "task", "backend", "algo", "seed", x, "return"])
+
+
+def plot_learning_curves(runs: list[RunRecord], x: str, path: Path) -> Path:
+    plt, sns = _pyplot()
+    frame = learning_curve_frame(runs, x)
+    if frame.empty:
+        raise NoPlotData("no run has logged a training reward")
+    panels = list(dict.fromkeys(frame["panel"]))
+    palette = _algo_palette(frame["algo"])
+    grid = sns.relplot(
+        data=frame,
+        kind="line",
+        x=x,
+        y="return",
+        hue="algo",
+        hue_order=list(palette),
+        palette=palette,
+        col="panel",
+        col_order=panels,
+        col_wrap=min(3, len(panels)),
+        errorbar=("ci", 95),
+        n_boot=CURVE_BOOTSTRAP,
+        seed=BOOTSTRAP_SEED,
+        height=3.6,
+        aspect=1.35,
+        facet_kws={"sharex": False, "sharey": False},
+    )
+    grid.set_titles("{col_name}")
+    xlabel = "env steps" if x == "env_steps" else "wall-clock training time (min)"
+    measures = set(frame["measure"])
+    ylabel = CURVE_MEASURES[measures.pop()] if len(measures) == 1 else "training return (see panel titles)"
+    grid.set_axis_labels(xlabel, ylabel)
+    from matplotlib import ticker
+
+    for ax in grid.axes.flat:
+        ax.xaxis.set_major_locator(ticker.MaxNLocator(5))
+        if x == "env_steps":
+            ax.xaxis.set_major_formatter(ticker.EngFormatter(sep=""))  # 40k, 1M: no overlapping long numbers
+    versus = "env steps" if x == "env_steps" else "wall-clock time"
+    grid.figure.suptitle(
+        f"Training return vs {versus}\nmean over training seeds, 95% bootstrap CI band; running average of "
+        "finished episodes;\neach task / backend at its most common horizon",
+        y=1.0,
+        va="bottom",  # above the panels' own titles, however many lines it has
+    )
+    return _save_figure(grid.figure, path)
+
+
+def plot_grad_variance(per_h: pd.DataFrame, path: Path) -> Path:
+    """Median actor-gradient variance against h, IQR error bars, log y, one line per algorithm."""
+    plt, sns = _pyplot()
+    data = per_h[np.isfinite(per_h["median"].astype(float)) & (per_h["median"].astype(float) > 0)]
+    if data.empty:
+        raise NoPlotData("no finite actor_grad_var")
+    panels = list(dict.fromkeys(zip(data["task"], data["backend"], strict=True)))
+    ncols = min(3, len(panels))
+    nrows = math.ceil(len(panels) / ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(5.2 * ncols, 3.9 * nrows), squeeze=False)
+    palette = _algo_palette(data["algo"])
+    for ax, (task, backend) in zip(axes.flat, panels, strict=False):
+        sub = data[(data["task"] == task) & (data["backend"] == backend)]
+        algos = [a for a in palette if a in set(sub["algo"])]
+        for i, algo in enumerate(algos):
+            line = sub[sub["algo"] == algo].sort_values("horizon")
+            # a slight horizontal offset per algorithm keeps bars at one h apart
+            shift = 2.0 ** (0.05 * (i - (len(algos) - 1) / 2))
+            median = line["median"].to_numpy(float)
+            spread = np.vstack([median - line["q1"].to_numpy(float), line["q3"].to_numpy(float) - median])
+            ax.errorbar(
+                line["horizon"].to_numpy(float) * shift,
+                median,
+                yerr=np.clip(spread, 0.0, None),
+                marker="o",
+                capsize=4,
+                label=algo,
+                color=palette[algo],
+            )
+        horizons = sorted(sub["horizon"].unique())
+        ax.set_xscale("log", base=2)
+        # half an octave of room either side: a single h would otherwise be zoomed onto the offsets
+        ax.set_xlim(min(horizons) / 2**0.5, max(horizons) * 2**0.5)
+        ax.set_xticks(horizons, [str(h) for h in horizons])
+        ax.minorticks_off()
+        ax.set_yscale("log")
+        ax.set_title(f"{task} / {backend}")
+        ax.set_xlabel("horizon h (steps)")
+        ax.set_ylabel("actor-gradient variance")
+        ax.legend(fontsize="small")
+    for ax in axes.flat[len(panels) :]:
+        ax.set_visible(False)
+    fig.suptitle("Actor-gradient variance vs horizon: median over all epochs and seeds, bars = IQR (Q1-Q3)")
+    fig.tight_layout()
+    return _save_figure(fig, path)
+
+
+def lambda_alpha_frame(runs: list[RunRecord]) -> pd.DataFrame:
+    """lambda (every algorithm) and alpha (SAPO's temperature; SHAC has none) per epoch, long format, thinned to
+    about CURVE_POINTS epochs per task (every k-th epoch, the same ones for every seed so they average)."""
+    horizons = curve_horizons(runs)
+    chosen = [r for r in runs if r.epochs and horizons.get((r.task, r.backend)) == r.horizon]
+    rows = []
+    for (task,), members in _group_runs(chosen, lambda r: (r.task,)).items():
+        stride = max(1, math.ceil(max(r.epochs for r in members) / CURVE_POINTS))
+        for run in members:
+            epochs = _column(run.metrics, "epoch")
+            keep = ((epochs % stride) == 0) | (epochs == epochs.max())
+            quantities = [("lambda", "lam")] + ([("alpha (SAPO temperature)", "alpha")] if run.base == "sapo" else [])
+            for label, name in quantities:
+                values = _column(run.metrics, name)
+                for epoch, value in zip(epochs[keep], values[keep], strict=True):
+                    if np.isfinite(value):
+                        panel = f"{task} / {run.backend}, h={run.horizon}"
+                        rows.append(
+                            {"panel": panel, "task": task, "backend": run.backend, "algo": run.algo, "seed": run.seed}
+                            | {"quantity": label, "epoch": int(epoch), "value": float(value)}
+                        )
+    return pd.DataFrame(rows, columns=["panel", "task", "backend", "algo", "seed", "quantity", "epoch", "value"])
+
+
+def plot_lambda_alpha(runs: list[RunRecord], path: Path) -> Path:
+    plt, sns = _pyplot()
+    frame = lambda_alpha_frame(runs)
+    if frame.empty:
+        raise NoPlotData("no run has logged lambda")
+    palette = _algo_palette(frame["algo"])
+    several_backends = frame["backend"].nunique() > 1
+    grid = sns.relplot(
+        data=frame,
+        kind="line",
+        x="epoch",
+        y="value",
+        hue="algo",
+        hue_order=list(palette),
+        palette=palette,
+        style="backend" if several_backends else None,
+        row="quantity",
+        row_order=[q for q in ("lambda", "alpha (SAPO temperature)") if q in set(frame["quantity"])],
+        col="task",
+        errorbar=("ci", 95),
+        n_boot=CURVE_BOOTSTRAP,
+        seed=BOOTSTRAP_SEED,
+        height=3.2,
+        aspect=1.4,
+        facet_kws={"sharex": "col", "sharey": False},
+    )
+    grid.set_titles("{row_name} | {col_name}")
+    for ax in grid.axes.flat:
+        if not ax.lines:
+            ax.text(0.5, 0.5, "no SAPO run", transform=ax.transAxes, ha="center", va="center", color="grey")
+    grid.set_axis_labels("epoch", "value (dimensionless)")
+    grid.figure.suptitle(
+        "TD lambda and SAPO temperature alpha per epoch\nmean over training seeds, 95% bootstrap CI band;\n"
+        "each task / backend at its most common horizon",
+        y=1.0,
+        va="bottom",
+    )
+    return _save_figure(grid.figure, path)
+
+
+def wall_time_split_frame(wall: pd.DataFrame) -> pd.DataFrame:
+    """Seconds per epoch of every time part, mean over seeds, per (task, backend, algo, horizon)."""
+    if wall.empty:
+        return pd.DataFrame()
+    per_epoch = wall.copy()
+    parts = [stem for stem, _, _ in TIME_PARTS]
+    for stem in parts:
+        per_epoch[stem] = per_epoch[f"{stem}_min"] * 60.0 / per_epoch["epochs"]
+    return per_epoch.groupby(["task", "backend", "algo", "horizon"], sort=False)[parts].mean().reset_index()
+
+
+def plot_wall_time(wall: pd.DataFrame, path: Path) -> Path:
+    """Stacked bars: seconds per epoch of each time part per (backend, algo, h), one panel per task."""
+    plt, sns = _pyplot()
+    split = wall_time_split_frame(wall)
+    if split.empty:
+        raise NoPlotData("no run has metrics")
+    parts = [(stem, label) for stem, label, _ in TIME_PARTS if (split[stem].fillna(0.0) > 0).any()]
+    colours = dict(zip([s for s, _, _ in TIME_PARTS], sns.color_palette("Set2", len(TIME_PARTS)), strict=True))
+    tasks = list(dict.fromkeys(split["task"]))
+    widths = [max(2, (split["task"] == t).sum()) for t in tasks]
+    fig, axes = plt.subplots(1, len(tasks), figsize=(1.3 * sum(widths) + 2.5, 4.6), width_ratios=widths, squeeze=False)
+    for ax, task in zip(axes[0], tasks, strict=True):
+        sub = split[split["task"] == task]
+        labels = [f"{a}\n{b} h{h}" for a, b, h in zip(sub["algo"], sub["backend"], sub["horizon"], strict=True)]
+        bottom = np.zeros(len(sub))
+        for stem, label in parts:
+            values = sub[stem].fillna(0.0).to_numpy()
+            ax.bar(labels, values, bottom=bottom, label=label, color=colours[stem], width=0.7)
+            bottom += values
+        ax.set_title(task)
+        ax.set_ylabel("seconds per epoch (mean over seeds)")
+        ax.tick_params(axis="x", labelsize=8)
+    handles, names = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles[::-1], names[::-1], loc="center left", bbox_to_anchor=(1.0, 0.5), title="time part")
+    fig.suptitle("Where an epoch's wall time goes (sum over epochs / epochs, mean over training seeds)")
+    fig.tight_layout()
+    return _save_figure(fig, path)
+
+
+def _rate_label(value: float) -> str:
+    return f"{value:,.0f}" if value >= 100 else f"{value:.3g}"
+
+
+def throughput_setups(table: pd.DataFrame) -> list[str]:
+    """An x label per throughput row: task, envs and horizon, plus what tells apart two files measuring the
+    same (backend, task, envs, h) (e.g. ``central`` of ``throughput_mujoco_warp_ant_central.json``), so that
+    seaborn draws them as two bars instead of averaging them."""
+    labels = [f"{r['task']}\n{_fmt(r['num_envs'])} envs, h={_fmt(r['horizon'])}" for _, r in table.iterrows()]
+    keys = list(zip(table["backend"], labels, strict=True))
+    repeated = {k for k, n in Counter(keys).items() if n > 1}
+    for i, (_, r) in enumerate(table.iterrows()):
+        if keys[i] in repeated:
+            words = Path(str(r["file"])).stem.split("_")
+            known = {"throughput", *str(r["backend"]).split("_"), *str(r["task"]).split("_")}
+            labels[i] += "\n" + ("_".join(w for w in words if w not in known) or "default")
+    return labels
+
+
+def plot_throughput(table: pd.DataFrame, path: Path) -> Path:
+    """env-steps/s forward and forward+backward (adapter and bare engine) per backend x task, log y."""
+    plt, sns = _pyplot()
+    measures = [
+        ("forward_steps_per_s", "forward"),
+        ("forward_backward_steps_per_s", "forward+backward"),
+        ("bare_forward_steps_per_s", "bare engine forward"),
+        ("bare_engine_steps_per_s", "bare engine forward+backward"),
+    ]
+    rows = []
+    setups = throughput_setups(table)
+    for (_, r), setup in zip(table.iterrows(), setups, strict=True):
+        for column, label in measures:
+            value = pd.to_numeric(r[column], errors="coerce")
+            if np.isfinite(value) and value > 0:
+                estimated = column == "forward_backward_steps_per_s" and bool(r["forward_backward_estimated"])
+                rows.append(
+                    {"backend": r["backend"], "setup": setup, "measure": label + (" (est.)" if estimated else "")}
+                    | {"env-steps/s": float(value)}
+                )
+    frame = pd.DataFrame(rows)
+    if frame.empty:
+        raise NoPlotData("no throughput check")
+    widest = int(frame.groupby("backend")["setup"].nunique().max())
+    grid = sns.catplot(
+        data=frame,
+        kind="bar",
+        x="setup",
+        y="env-steps/s",
+        hue="measure",
+        col="backend",
+        col_order=sorted(frame["backend"].unique(), key=_rank),
+        col_wrap=1 if widest > 3 else None,  # many setups: backends one above the other, not a strip
+        sharex=False,
+        height=4.2,
+        aspect=max(1.3, 0.5 * widest),
+        palette="muted",
+    )
+    # log bars start at the axis bottom: a third of the slowest rate keeps the shortest bar visible
+    grid.set(yscale="log", ylim=(frame["env-steps/s"].min() / 3.0, None))
+    grid.set_titles("{col_name}")
+    grid.set_axis_labels("task (envs, horizon)", "env-steps per second (log scale)")
+    for ax in grid.axes.flat:
+        ax.tick_params(axis="x", labelsize=8)
+        for container in ax.containers:
+            ax.bar_label(container, labels=[_rate_label(v) for v in container.datavalues], fontsize=7, padding=1)
+    grid.figure.suptitle("Throughput per backend and task (throughput checks)", y=1.0, va="bottom")
+    return _save_figure(grid.figure, path)
+
+
+def plot_landscapes(runs: list[RunRecord], out_dir: Path) -> tuple[list[Path], list[str]]:
+    """One PNG per landscape.json through ``harness.landscape.plot_landscape`` when that module imports."""
+    landscapes = [r for r in runs if r.landscape is not None]
+    if not landscapes:
+        return [], []
+    try:
+        from harness.landscape import plot_landscape
+    except Exception as exc:  # written in parallel; the table does not need it
+        return [], [f"landscape_*.png: harness.landscape.plot_landscape unavailable ({type(exc).__name__}: {exc})"]
+    written, skipped = [], []
+    for run in landscapes:
+        name = f"landscape_{run.task}_{run.backend}_{run.algo}_h{run.horizon}_s{run.seed}.png"
+        try:
+            written.append(Path(plot_landscape(run.landscape, out_dir / name)))
+        except Exception as exc:
+            skipped.append(f"{name}: {type(exc).__name__}: {exc}")
+    return written, skipped
+
+
+# -- entry point ----------------------------------------------------------------------------------
+PLOT_DESCRIPTIONS = {
+    "learning_curves_steps.png": "training return vs env steps, per task x backend at its most common horizon",
+    "learning_curves_wall.png": "training return vs wall-clock minutes, same runs",
+    "grad_variance_vs_h.png": "median actor-gradient variance vs h with IQR bars, log y",
+    "lambda_alpha.png": "lambda and SAPO's alpha per epoch, per task",
+    "wall_time.png": "seconds per epoch split into simulation, backward and updates",
+    "throughput.png": "env-steps/s forward and forward+backward per backend x task, log y",
+}
+
+
+def write_bench_report(
+    runs: list[Path], checks: list[Path], out_dir: Path, header: dict, stream=sys.stdout
+) -> list[Path]:
+    """Write every table (Markdown, CSV, provenance JSON) and plot of the suite into ``out_dir``.
+
+    ``runs``: run directories (config.json, metrics.jsonl, optional eval.json, eval_on_*.json,
+    sim2sim_on_*.json, landscape.json); ``checks``: check JSON files; ``header``: ``provenance()`` plus
+    ``profile``. Returns the files written; skipped plots are printed on ``stream`` and listed in index.md.
+    """
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    unique_runs = list(dict.fromkeys(Path(r).resolve() for r in runs))
+    records = [rec for rec in (load_run(r, stream) for r in unique_runs) if rec is not None]
+    check_records = [c for c in (load_check(Path(p), stream) for p in dict.fromkeys(checks)) if c is not None]
+    for key, members in _by_group(records).items():
+        seeds = Counter(r.seed for r in members)
+        repeated = sorted(s for s, n in seeds.items() if n > 1)
+        if repeated:
+            _say(stream, f"group {key} has seed(s) {repeated} more than once (different run directories): all counted")
+
+    written: list[Path] = []
+    tables = build_tables(records, check_records)
+    main = {table.name: table.sections[0].frame for table in tables}  # the plots draw from the tables' numbers
+    for table in tables:
+        written += write_table(table, out_dir, header)
+
+    plots: list[tuple[str, Callable[[Path], Path]]] = [
+        ("learning_curves_steps.png", lambda p: plot_learning_curves(records, "env_steps", p)),
+        ("learning_curves_wall.png", lambda p: plot_learning_curves(records, "wall_min", p)),
+        ("grad_variance_vs_h.png", lambda p: plot_grad_variance(main["grad_variance_vs_h"], p)),
+        ("lambda_alpha.png", lambda p: plot_lambda_alpha(records, p)),
+        ("wall_time.png", lambda p: plot_wall_time(main["wall_time"], p)),
+        ("throughput.png", lambda p: plot_throughput(main["throughput"], p)),
+    ]
+    plotted, skipped = [], []
+    for name, draw in plots:
+        path = out_dir / name
+        try:
+            plotted.append(draw(path))
+        except NoPlotData as reason:
+            skipped.append(f"{name}: {reason}")
+            path.unlink(missing_ok=True)  # a figure from an earlier report would pass for this one
+        except Exception as exc:  # a plot must not cost the tables of a finished suite
+            skipped.append(f"{name}: failed: {type(exc).__name__}: {exc}")
+            path.unlink(missing_ok=True)
+            _pyplot()[0].close("all")  # the half-drawn figure
+    landscape_pngs, landscape_skipped = plot_landscapes(records, out_dir)
+    plotted += landscape_pngs
+    skipped += landscape_skipped
+    for line in skipped:
+        _say(stream, f"skipped plot {line}")
+    written += plotted
+    written.append(write_index(tables, plotted, skipped, out_dir, header))
+    return written
+
+
+def write_index(tables: list[Table], plotted: list[Path], skipped: list[str], out_dir: Path, header: dict) -> Path:
+    """``index.md``: what the report holds, and which plots were skipped and why."""
+    lines = ["# Benchmark report", "", *header_lines(header), "", "## Tables", ""]
+    for table in tables:
+        csvs = ", ".join(f"`{table.name}{s.csv_suffix}.csv`" for s in table.sections)
+        lines.append(f"- `{table.name}.md` ({csvs}): {table.title}. {table.rests_on}")
+    lines += [
+        "",
+        "CSV provenance: every `NAME.csv` has a `NAME.provenance.json` beside it "
+        "(command, commit, time, packages, machine, what the numbers rest on).",
+    ]
+    lines += ["", "## Plots", ""]
+    landscape = "actor-loss landscape, h-step vs TD-lambda (harness.landscape.plot_landscape)"
+    lines += [f"- `{p.name}`: {PLOT_DESCRIPTIONS.get(p.name, landscape)}" for p in plotted]
+    if not plotted:
+        lines.append("- none")
+    if skipped:
+        lines += ["", "Skipped:", "", *[f"- {line}" for line in skipped]]
+    return atomic_write_text(out_dir / "index.md", "\n".join(lines) + "\n")

@@ -1,0 +1,376 @@
+"""The benchmark suite's tables and plots (harness/bench_report.py) on synthetic run directories whose
+numbers are known: IQM and bootstrap CIs, improvement over the base algorithm, gradient-variance quartiles
+and growth, the wall-time split, sim-to-sim gaps, landscapes, checks, provenance and the PNGs."""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import stats
+
+from harness.bench_report import (
+    base_algo,
+    collect_runs,
+    header_lines,
+    iqm_difference_with_ci,
+    load_run,
+    returns_table,
+    write_bench_report,
+)
+
+COMMIT = "c0ffee1"
+HEADER = {
+    "profile": "unit",
+    "command": "python -m harness bench --profile unit",
+    "commit": COMMIT,
+    "created_utc": "2026-01-02T03:04:05Z",
+    "packages": {"torch": "2.13.0+cpu", "newton": "1.8.0", "mujoco-warp": None},
+    "machine": {"cpu_model": "Test CPU", "cpu_count": 2, "OMP_NUM_THREADS": "1", "gpus": []},
+}
+EPOCHS = 4
+# per epoch: seconds of each part; update = actor + critic + lambda (as algorithms/actor_critic.py logs them)
+SIM_FORWARD, BACKWARD, ACTOR, CRITIC, LAMBDA = 0.5, 0.3, 0.1, 0.08, 0.02
+UPDATE = ACTOR + CRITIC + LAMBDA
+EPOCH_S = 1.2  # 0.2 s a epoch of "other"
+
+
+def _eval_payload(final: float, initial: float = -50.0, **extra) -> dict:
+    block = lambda value: {"mean_return": value, "std_over_seeds": 0.0, "per_seed": []}  # noqa: E731
+    return (
+        {"num_envs": 8, "seeds": 2, "deterministic": True, "max_steps": None}
+        | extra
+        | {
+            "initial": block(initial),
+            "final": block(final),
+            "provenance": {"git_commit": "e7a1"},
+        }
+    )
+
+
+def make_run(
+    root: Path,
+    task: str,
+    backend: str,
+    algo: str,
+    seed: int,
+    horizon: int,
+    final: float | None,
+    grad_var: list[float],
+    split_update: bool = True,
+) -> Path:
+    """A run directory as harness/train.py leaves it: config.json, metrics.jsonl and (unless final is None)
+    eval.json. ``grad_var``: actor_grad_var of each epoch (NaN allowed, as the log has it)."""
+    run = root / f"{task}_{backend}_{algo}_h{horizon}_s{seed}"
+    run.mkdir(parents=True)
+    num_envs = 4
+    config = {
+        "task": task,
+        "backend": backend,
+        "seed": seed,
+        "device": "cpu",
+        "epochs": EPOCHS,
+        "algo": {"algo": algo, "num_envs": num_envs, "horizon": horizon, "gamma": 0.99, "lam": 0.95},
+        "provenance": {"git_commit": "7ra1ned"},
+    }
+    (run / "config.json").write_text(json.dumps(config))
+    rows = []
+    for epoch in range(EPOCHS):
+        row = {
+            "epoch": epoch,
+            "env_steps": (epoch + 1) * num_envs * horizon,
+            "wall_s": (epoch + 1) * EPOCH_S,
+            "epoch_s": EPOCH_S,
+            "sim_forward_s": SIM_FORWARD,
+            "backward_s": BACKWARD,
+            "update_s": UPDATE,
+            "actor_loss": -1.0,
+            "actor_grad_norm": 1.0,
+            "actor_grad_var": grad_var[epoch],
+            "lam": 0.95 - 0.01 * epoch,
+            "alpha": 1.0 - 0.1 * epoch,
+            "entropy": 1.0,
+            # no finished episode in the first epoch: null, as train.py logs it
+            "train_episode_return": None if epoch == 0 else 10.0 * epoch + seed,
+            "train_episode_return_avg": None if epoch == 0 else 5.0 * epoch + seed,
+        }
+        if split_update:
+            row |= {"actor_update_s": ACTOR, "critic_update_s": CRITIC, "lambda_update_s": LAMBDA}
+        rows.append(row)
+    # json.dumps writes NaN as the NaN literal, exactly as the training log does
+    (run / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    if final is not None:
+        (run / "eval.json").write_text(json.dumps(_eval_payload(final)))
+    return run
+
+
+SHAC_FINALS = [1.0, 2.0, 3.0, 4.0, 100.0]
+TDADPT_FINALS = [10.0, 11.0, 12.0, 13.0, 14.0]
+H16_GRAD_VAR = [1.0, 2.0, 3.0, math.nan]
+H32_GRAD_VAR = [4.0, 8.0, 12.0, math.nan]
+
+
+@pytest.fixture(scope="module")
+def suite(tmp_path_factory):
+    """Synthetic suite: Ant on Newton (shac and shac-tdadpt, 5 seeds, h=16; shac at h=32 with one
+    unfinished seed), Ant on MuJoCo-Warp (shac, h=16, old log without the update split), a sim-to-sim
+    evaluation, a landscape and three checks; then the report."""
+    root = tmp_path_factory.mktemp("bench")
+    runs_root = root / "runs"
+    for seed, final in enumerate(SHAC_FINALS):
+        make_run(runs_root, "ant", "newton", "shac", seed, 16, final, H16_GRAD_VAR)
+    for seed, final in enumerate(TDADPT_FINALS):
+        make_run(runs_root, "ant", "newton", "shac-tdadpt", seed, 16, final, [5.0, 5.0, 5.0, 5.0])
+    for seed, final in enumerate([20.0, 30.0, None]):  # seed 2 never finished: no eval.json
+        make_run(runs_root, "ant", "newton", "shac", seed, 32, final, H32_GRAD_VAR)
+    make_run(runs_root, "ant", "mujoco_warp", "shac", 0, 16, 7.0, [1.0] * EPOCHS, split_update=False)
+
+    sim2sim = runs_root / "ant_newton_shac_h16_s0"
+    payload = _eval_payload(-5.0, backend="mujoco_warp", trained_on="newton")
+    (sim2sim / "eval_on_mujoco_warp.json").write_text(json.dumps(payload))
+
+    grid = 5
+    alphas = np.linspace(-1.0, 1.0, grid)
+    surface = np.add.outer(alphas, alphas)
+    landscape = {
+        "task": "ant",
+        "backend": "newton",
+        "algo": "shac-tdadpt",
+        "seed": 0,
+        "horizon": 16,
+        "num_envs": 4,
+        "grid": grid,
+        "span": 1.0,
+        "lambda": 0.9,
+        "alphas": alphas.tolist(),
+        "betas": alphas.tolist(),
+        "losses": {"h_step": surface.tolist(), "td_lambda": (0.5 * surface).tolist()},
+        "roughness": {"h_step": 2.0, "td_lambda": 0.5},
+    }
+    (runs_root / "ant_newton_shac-tdadpt_h16_s0" / "landscape.json").write_text(json.dumps(landscape))
+
+    checks = root / "checks"
+    checks.mkdir()
+    throughput = {
+        "backend": "newton",
+        "task": "ant",
+        "num_envs": 64,
+        "horizon": 32,
+        "windows": 3,
+        "forward_steps_per_s": 10000.0,
+        "forward_backward_steps_per_s": 2500.0,
+        "bare_engine_steps_per_s": 3000.0,
+        "bare_forward_steps_per_s": 12000.0,
+        "overhead_ratio": 1.2,
+        "forward_overhead_ratio": 1.2,
+        "gradient_cost_factor": 4.0,
+    }
+    gradcheck = {"backend": "newton", "task": "ant", "max_rel_error": 1e-3, "tolerance": 2e-2, "passed": True}
+    crosscheck = {
+        "task": "ant",
+        "segments": {
+            "contact_free": {"pairs": {"newton vs mujoco_warp": {"actions": {"rel_diff": 0.01, "cosine": 0.999}}}}
+        },
+    }
+    check_files = []
+    for name, content in (
+        ("throughput_ant_newton_1.json", {"result": throughput, "provenance": {"git_commit": "abc"}}),
+        ("gradcheck_ant_newton_2.json", {"result": gradcheck, "provenance": {"git_commit": "abc"}}),
+        ("crosscheck_ant_newton-mujoco_warp_3.json", {**crosscheck, "provenance": {"git_commit": "abc"}}),
+    ):
+        (checks / name).write_text(json.dumps(content))
+        check_files.append(checks / name)
+    check_files.append(checks / "never_written.json")  # a failed job's output: must not crash the report
+
+    out = root / "report"
+    log = io.StringIO()
+    written = write_bench_report(collect_runs(runs_root), check_files, out, HEADER, stream=log)
+    return {"root": runs_root, "out": out, "written": written, "log": log.getvalue()}
+
+
+def _row(frame: pd.DataFrame, **where) -> pd.Series:
+    match = frame
+    for key, value in where.items():
+        match = match[match[key] == value]
+    assert len(match) == 1, (where, match)
+    return match.iloc[0]
+
+
+def test_returns_iqm_ci_and_improvement(suite):
+    returns = pd.read_csv(suite["out"] / "returns.csv")
+    shac = _row(returns, task="ant", backend="newton", algo="shac", horizon=16)
+    assert shac["seeds"] == 5
+    assert shac["iqm_final"] == pytest.approx(3.0)  # the middle half of [1, 2, 3, 4, 100]
+    assert shac["iqm_final"] == pytest.approx(stats.trim_mean(SHAC_FINALS, 0.25))
+    assert shac["iqm_ci_low"] <= 3.0 <= shac["iqm_ci_high"]
+    assert shac["mean_final"] == pytest.approx(22.0)
+    assert shac["std_final"] == pytest.approx(np.std(SHAC_FINALS, ddof=1))
+    assert shac["mean_initial"] == pytest.approx(-50.0)
+    assert shac["env_steps"] == EPOCHS * 4 * 16
+    assert pd.isna(shac["improvement_iqm"])  # a base algorithm has nothing to improve on
+
+    tdadpt = _row(returns, task="ant", backend="newton", algo="shac-tdadpt", horizon=16)
+    assert tdadpt["iqm_final"] == pytest.approx(12.0)
+    assert tdadpt["iqm_ci_low"] <= 12.0 <= tdadpt["iqm_ci_high"]
+    assert tdadpt["base"] == "shac"
+    assert tdadpt["improvement_iqm"] == pytest.approx(12.0 - 3.0)
+    assert tdadpt["improvement_ci_low"] <= 9.0 <= tdadpt["improvement_ci_high"]
+    # the documented procedure, recomputed independently: unpaired two-sample percentile bootstrap, rng 0
+    independent = stats.bootstrap(
+        (np.array(TDADPT_FINALS), np.array(SHAC_FINALS)),
+        lambda x, y, axis=-1: stats.trim_mean(x, 0.25, axis=axis) - stats.trim_mean(y, 0.25, axis=axis),
+        paired=False,
+        vectorized=True,
+        n_resamples=2000,
+        method="percentile",
+        rng=np.random.default_rng(0),
+    ).confidence_interval
+    assert tdadpt["improvement_ci_low"] == pytest.approx(independent.low)
+    assert tdadpt["improvement_ci_high"] == pytest.approx(independent.high)
+
+
+def test_unfinished_run_is_left_out_of_returns_but_not_of_curves(suite):
+    returns = pd.read_csv(suite["out"] / "returns.csv")
+    h32 = _row(returns, algo="shac", backend="newton", horizon=32)
+    assert h32["seeds"] == 2  # seed 2 has no eval.json
+    assert h32["iqm_final"] == pytest.approx(25.0)  # trim_mean of 2 values cuts none
+    grad = pd.read_csv(suite["out"] / "grad_variance_vs_h.csv")
+    assert _row(grad, algo="shac", backend="newton", horizon=32)["seeds"] == 3
+    wall = pd.read_csv(suite["out"] / "wall_time.csv")
+    assert len(wall) == 5 + 5 + 3 + 1
+
+
+def test_single_seed_has_a_value_and_no_ci(suite):
+    returns = pd.read_csv(suite["out"] / "returns.csv")
+    warp = _row(returns, backend="mujoco_warp", algo="shac")
+    assert warp["iqm_final"] == pytest.approx(7.0)
+    assert pd.isna(warp["iqm_ci_low"]) and pd.isna(warp["iqm_ci_high"])
+    assert "| ant | mujoco_warp | shac | 16 | 1 |" in (suite["out"] / "returns.md").read_text()
+
+
+def test_tables_are_reproducible(suite):
+    runs = [load_run(p) for p in collect_runs(suite["root"])]
+    pd.testing.assert_frame_equal(returns_table(runs), returns_table(runs))
+    point, low, high = iqm_difference_with_ci([1.0, 2.0], [3.0])  # one seed on a side: a value, no CI
+    assert point == -1.5 and math.isnan(low) and math.isnan(high)
+
+
+def test_grad_variance_quartiles_and_growth(suite):
+    grad = pd.read_csv(suite["out"] / "grad_variance_vs_h.csv")
+    h16 = _row(grad, task="ant", backend="newton", algo="shac", horizon=16)
+    # 5 seeds x [1, 2, 3] pooled (NaN dropped): 15 values, sorted 1 x5, 2 x5, 3 x5
+    assert h16["values"] == 15
+    assert (h16["q1"], h16["median"], h16["q3"]) == (1.0, 2.0, 3.0)
+    h32 = _row(grad, task="ant", backend="newton", algo="shac", horizon=32)
+    assert (h32["q1"], h32["median"], h32["q3"]) == (4.0, 8.0, 12.0)
+    growth = pd.read_csv(suite["out"] / "grad_variance_vs_h_growth.csv")
+    shac = _row(growth, task="ant", backend="newton", algo="shac")
+    assert (shac["h_min"], shac["h_max"], shac["growth_factor"]) == (16, 32, pytest.approx(8.0 / 2.0))
+    assert len(growth) == 1  # shac-tdadpt has one horizon only
+
+
+def test_wall_time_split(suite):
+    wall = pd.read_csv(suite["out"] / "wall_time.csv")
+    run = _row(wall, backend="newton", algo="shac", horizon=16, seed=0)
+    assert run["wall_min"] == pytest.approx(EPOCHS * EPOCH_S / 60)
+    assert run["s_per_epoch"] == pytest.approx(EPOCH_S)
+    for stem, per_epoch in (
+        ("sim_forward", SIM_FORWARD),
+        ("backward", BACKWARD),
+        ("actor_update", ACTOR),
+        ("critic_update", CRITIC),
+        ("lambda_update", LAMBDA),
+        ("update_unsplit", 0.0),
+        ("other", EPOCH_S - SIM_FORWARD - BACKWARD - UPDATE),
+    ):
+        assert run[f"{stem}_min"] == pytest.approx(EPOCHS * per_epoch / 60), stem
+        assert run[f"{stem}_frac"] == pytest.approx(per_epoch / EPOCH_S), stem
+    old = _row(wall, backend="mujoco_warp")  # logged before the update split: all of it is "update"
+    assert old["update_unsplit_min"] == pytest.approx(EPOCHS * UPDATE / 60)
+    assert old["actor_update_min"] == 0.0
+
+
+def test_throughput_backends_sim_to_sim_landscape_checks(suite):
+    out = suite["out"]
+    throughput = pd.read_csv(out / "throughput.csv")
+    assert _row(throughput, backend="newton", task="ant")["forward_backward_steps_per_s"] == 2500.0
+
+    backends = pd.read_csv(out / "backends.csv")
+    both = _row(backends, task="ant", algo="shac", horizon=16)
+    assert (both["newton_seeds"], both["mujoco_warp_seeds"]) == (5, 1)
+    assert (both["newton_iqm_final"], both["mujoco_warp_iqm_final"]) == (3.0, 7.0)
+    assert len(backends) == 1  # shac-tdadpt and h=32 ran on one backend only
+
+    s2s = pd.read_csv(out / "sim_to_sim.csv")
+    row = _row(s2s, seed=0)
+    assert (row["trained_on"], row["evaluated_on"]) == ("newton", "mujoco_warp")
+    assert (row["own_return"], row["other_return"], row["gap"]) == (1.0, -5.0, -6.0)
+    assert row["own_source"] == "eval.json" and bool(row["same_protocol"])
+    assert _row(pd.read_csv(out / "sim_to_sim_mean.csv"), algo="shac")["gap_mean"] == -6.0
+
+    land = _row(pd.read_csv(out / "landscape.csv"), algo="shac-tdadpt")
+    assert (land["roughness_h_step"], land["roughness_td_lambda"]) == (2.0, 0.5)
+    assert land["ratio_h_step_over_td_lambda"] == 4.0
+
+    checks = pd.read_csv(out / "checks.csv")
+    assert set(checks["kind"]) == {"throughput", "gradcheck", "crosscheck"}
+    assert bool(_row(checks, kind="gradcheck")["passed"])
+    assert "min cosine 0.999" in _row(checks, kind="crosscheck")["summary"]
+    assert "never_written.json" in suite["log"]
+
+
+def test_every_file_states_its_provenance(suite):
+    written = suite["written"]
+    markdown = [p for p in written if p.suffix == ".md"]
+    assert {p.name for p in markdown} >= {
+        f"{name}.md"
+        for name in ("returns", "grad_variance_vs_h", "wall_time", "throughput", "backends", "sim_to_sim")
+        + ("landscape", "checks", "index")
+    }
+    for path in markdown:
+        text = path.read_text()
+        assert COMMIT in text and HEADER["command"] in text and "Test CPU" in text and "torch 2.13.0+cpu" in text
+        if path.name != "index.md":
+            assert text.startswith("# ") and "Rests on" in text
+    for csv in (p for p in written if p.suffix == ".csv"):
+        sidecar = json.loads(csv.with_suffix(".provenance.json").read_text())
+        assert sidecar["provenance"]["commit"] == COMMIT and sidecar["csv"] == csv.name
+        assert sidecar["columns"] == list(pd.read_csv(csv).columns)
+    assert "git_commit" not in HEADER
+    assert "`deadbee`" in header_lines({"git_commit": "deadbee"})[0]  # provenance()'s own key works too
+
+
+def test_every_plot_exists(suite):
+    pngs = [p for p in suite["written"] if p.suffix == ".png"]
+    names = {p.name for p in pngs}
+    expected = {"learning_curves_steps", "learning_curves_wall", "grad_variance_vs_h", "lambda_alpha", "wall_time"}
+    assert {f"{n}.png" for n in expected | {"throughput"}} <= names
+    for path in pngs:
+        assert path.is_file() and path.stat().st_size > 1000, path
+    # the landscape figure comes from harness.landscape when it imports; else the skip is said
+    assert "landscape_ant_newton_shac-tdadpt_h16_s0.png" in names or "skipped plot landscape_" in suite["log"]
+    assert "skipped plot" not in suite["log"].replace("skipped plot landscape_", "")
+
+
+def test_empty_inputs_write_tables_and_skip_plots(tmp_path):
+    log = io.StringIO()
+    written = write_bench_report([], [], tmp_path / "empty", HEADER, stream=log)
+    assert not [p for p in written if p.suffix == ".png"]
+    assert "No rows" in (tmp_path / "empty" / "backends.md").read_text()
+    assert "skipped plot learning_curves_steps.png" in log.getvalue()
+    assert "Skipped" in (tmp_path / "empty" / "index.md").read_text()
+
+
+def test_base_algo():
+    assert [base_algo(a) for a in ("shac", "shac-tdfixed", "shac-tdadpt", "sapo-tdfixed", "sapo-tdadpt")] == [
+        "shac",
+        "shac",
+        "shac",
+        "sapo",
+        "sapo",
+    ]
