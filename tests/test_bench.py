@@ -240,3 +240,36 @@ def test_newcomer_tiny_spec_end_to_end(tmp_path):
         timeout=300,
     )
     assert again.returncode == 0 and "jobs 5/5 (runs 2/2; 5 reused, 0 failed)" in again.stdout, again.stdout[-2000:]
+
+
+@POINTMASS
+def test_ctrl_c_stops_the_suite_resumably(tmp_path):
+    """SIGINT to the suite: its running jobs checkpoint and stop, it exits 130, and the same command then
+    finishes every run from where it stopped (no epoch lost or run twice)."""
+    import signal
+    import time
+
+    spec = _write(
+        tmp_path, POINTMASS_SPEC.replace("epochs = 3", "epochs = 60").replace("seeds = [0, 1]", "seeds = [0]")
+    )
+    store = tmp_path / "store"
+    command = [sys.executable, "-m", "harness", "bench", "--spec", str(spec), "--store", str(store)]
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env())
+    deadline = time.time() + 300
+    while time.time() < deadline:
+        metrics = list((store / "pm" / "runs").glob("*/metrics.jsonl")) if (store / "pm" / "runs").exists() else []
+        if metrics and max(len(m.read_text().splitlines()) for m in metrics) >= 3:
+            break
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=300)
+    assert proc.returncode == 130, out[-2000:] + err[-2000:]
+    assert "run the same command again" in err
+    stopped = [d for d in (store / "pm" / "runs").iterdir() if not (d / "eval.json").exists()]
+    assert stopped, "every run finished before the signal: the test did not interrupt anything"
+    again = subprocess.run(command, capture_output=True, text=True, env=_env(), timeout=600)
+    assert again.returncode == 0, again.stdout[-2000:] + again.stderr[-2000:]
+    for run in (store / "pm" / "runs").iterdir():
+        rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+        assert [r["epoch"] for r in rows] == list(range(60)), run.name
+        assert (run / "eval.json").is_file()
