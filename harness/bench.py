@@ -243,6 +243,9 @@ def _train_grid(data: dict, device: str, known: dict) -> list[RunSpec]:
             if run.key not in seen:  # the same run listed twice (two blocks) is one run
                 seen.add(run.key)
                 runs.append(run)
+    # seed-major across blocks too (a stable sort keeps the blocks' order within a seed): wherever a long
+    # suite stops, every block and algorithm has the same number of seeds and every table has rows
+    runs.sort(key=lambda r: r.seed)
     return runs
 
 
@@ -304,7 +307,9 @@ def _harness(*words) -> list[str]:
 
 
 def plan(data: dict, store: Path) -> list[Job]:
-    """Every job of the spec, in the order they may start: training runs, checks, then analyses of runs."""
+    """Every job of the spec, in the order they may start: the first seed's training runs, the checks,
+    the other seeds' runs, then analyses of runs (the runner starts an analysis as soon as its run is
+    done)."""
     import backends
     import tasks
     from algorithms.config import ALGORITHMS
@@ -374,6 +379,11 @@ def plan(data: dict, store: Path) -> list[Job]:
                         cost_key=(kind, label_backend, task),
                     )
                 )
+
+    first_seed = min((r.seed for r in runs), default=0)
+    trains = [j for j in jobs if j.kind == "train"]
+    checks = [j for j in jobs if j.kind in CHECK_KINDS]
+    jobs = [j for j in trains if j.run.seed == first_seed] + checks + [j for j in trains if j.run.seed != first_seed]
 
     def select(block: dict, where: str, backend_key: str) -> list[Job]:
         found = [
@@ -526,6 +536,8 @@ def run_jobs(jobs: list[Job], store: Path, workers: int, name: str, stream=sys.s
                 job = None
                 while job is None:
                     pending = [j for j in jobs if j.state == "pending"]
+                    # analyses of finished runs first: a stopped suite then has them for what it trained
+                    pending.sort(key=lambda j: j.kind not in ("sim_to_sim", "landscape"))
                     if not pending or stop.is_set():
                         return
                     for candidate in pending:
