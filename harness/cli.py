@@ -235,8 +235,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add(p, "eval", "run", "eval_seeds", "num_envs", "max_steps", "out", required=("run",))
     p.add_argument(
         "--backend",
-        help="evaluate on this backend instead of the one the run trained on (sim-to-sim; "
-        "default file DIR/eval_on_BACKEND.json)",
+        help="adapter name (see `list`): evaluate on this backend instead of the one the run "
+        "trained on (sim-to-sim; default file DIR/eval_on_BACKEND.json)",
     )
 
     p = sub.add_parser("report", help="tables (md, csv: per run and mean over seeds) and curves (png)")
