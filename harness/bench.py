@@ -39,15 +39,14 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import os
 import signal
-import subprocess
 import sys
 import threading
 import time
 import tomllib
 from pathlib import Path
 
+from harness.claims import Claim
 from harness.results import RunError, RunStopped
 
 PROFILES_DIR = Path(__file__).resolve().parent / "profiles"
@@ -306,6 +305,33 @@ def _harness(*words) -> list[str]:
     return [sys.executable, "-m", "harness", *[str(w) for w in words]]
 
 
+def _episode(task: str, cap: int | None) -> int:
+    import tasks
+
+    return min(cap or 10**9, int(tasks.task_class(task).episode_length))
+
+
+def train_job(run: RunSpec, run_dir: Path) -> Job:
+    """The job that trains (or resumes) ``run`` in ``run_dir`` and evaluates it: ``bench-run RUN_DIR``."""
+    # initial and final policy, every seed, at most one episode each
+    eval_envs = run.eval_num_envs or 2 * run.num_envs
+    eval_steps = 2 * run.eval_seeds * eval_envs * _episode(run.task, run.eval_max_steps)
+    estimate = _STARTUP_S + run.env_steps * _SECONDS_PER_ENV_STEP.get((run.backend, run.task), 5e-3)
+    estimate += eval_steps * _SECONDS_PER_EVAL_STEP.get((run.backend, run.task), 1e-4)
+    return Job(
+        label=run_dir.name,
+        kind="train",
+        argv=_harness("bench-run", run_dir),
+        output=run_dir / ("eval.json" if run.eval_seeds else "metrics.jsonl"),
+        estimate_s=estimate,
+        cost_key=("train", run.backend, run.task),
+        run=run,
+        run_dir=run_dir,
+        expect={"seeds": run.eval_seeds, "max_steps": run.eval_max_steps}
+        | ({"num_envs": run.eval_num_envs} if run.eval_num_envs else {}),
+    )
+
+
 def plan(data: dict, store: Path) -> list[Job]:
     """Every job of the spec, in the order they may start: the first seed's training runs, the checks,
     the other seeds' runs, then analyses of runs (the runner starts an analysis as soon as its run is
@@ -323,28 +349,8 @@ def plan(data: dict, store: Path) -> list[Job]:
     runs = _train_grid(data, device, known)
     by_identity = {}
 
-    def episode(task: str, cap: int | None) -> int:
-        return min(cap or 10**9, int(tasks.task_class(task).episode_length))
-
     for run in runs:
-        run_dir = store / "runs" / run.dirname
-        # initial and final policy, every seed, at most one episode each
-        eval_envs = run.eval_num_envs or 2 * run.num_envs
-        eval_steps = 2 * run.eval_seeds * eval_envs * episode(run.task, run.eval_max_steps)
-        estimate = _STARTUP_S + run.env_steps * _SECONDS_PER_ENV_STEP.get((run.backend, run.task), 5e-3)
-        estimate += eval_steps * _SECONDS_PER_EVAL_STEP.get((run.backend, run.task), 1e-4)
-        job = Job(
-            label=run.dirname,
-            kind="train",
-            argv=_harness("bench-run", run_dir),
-            output=run_dir / ("eval.json" if run.eval_seeds else "metrics.jsonl"),
-            estimate_s=estimate,
-            cost_key=("train", run.backend, run.task),
-            run=run,
-            run_dir=run_dir,
-            expect={"seeds": run.eval_seeds, "max_steps": run.eval_max_steps}
-            | ({"num_envs": run.eval_num_envs} if run.eval_num_envs else {}),
-        )
+        job = train_job(run, store / "runs" / run.dirname)
         jobs.append(job)
         by_identity[(run.task, run.backend, run.algo, run.seed, run.horizon)] = job
 
@@ -419,7 +425,7 @@ def plan(data: dict, store: Path) -> list[Job]:
                 words = ["--eval-seeds", protocol["seeds"], "--num-envs", protocol["num_envs"]]
                 if protocol["max_steps"]:
                     words += ["--max-steps", protocol["max_steps"]]
-                steps = 2 * protocol["seeds"] * protocol["num_envs"] * episode(source.run.task, protocol["max_steps"])
+                steps = 2 * protocol["seeds"] * protocol["num_envs"] * _episode(source.run.task, protocol["max_steps"])
                 jobs.append(
                     Job(
                         label=f"sim-to-sim {source.label} on {backend}",
@@ -500,27 +506,34 @@ class _Progress:
             failed = sum(j.state in ("failed", "skipped") for j in self.jobs)
             runs = [j for j in self.jobs if j.kind == "train"]
             runs_done = sum(j.state in ("done", "reused") for j in runs)
+            active = sum(j.state == "running" for j in self.jobs)
             elapsed = time.perf_counter() - self.t0
             text = (
                 f"[bench {self.name}] jobs {len(finished)}/{len(self.jobs)} (runs {runs_done}/{len(runs)}; "
-                f"{reused} reused, {failed} failed) · elapsed {_fmt(elapsed)} · ETA {_fmt(self._remaining())} · {event}"
+                f"{active} running, {reused} reused, {failed} failed) · elapsed {_fmt(elapsed)} · "
+                f"ETA {_fmt(self._remaining())} · {event}"
             )
         print(text, file=self.stream, flush=True)
 
 
-def run_jobs(jobs: list[Job], store: Path, workers: int, name: str, stream=sys.stdout) -> list[Job]:
-    """Run the jobs not yet done, ``workers`` at a time, in order, each after the jobs it needs."""
+def run_jobs(jobs: list[Job], store: Path, workers: int, name: str, stream=sys.stdout, launcher=None) -> list[Job]:
+    """Run the jobs not yet done, ``workers`` at a time, in order, each after the jobs it needs, on
+    ``launcher`` (harness/launchers.py; default: local processes)."""
+    from harness.launchers import LocalLauncher, last_error_line
+
+    launcher = launcher or LocalLauncher(workers)
+    workers = launcher.workers
     logs = store / "logs"
     logs.mkdir(parents=True, exist_ok=True)
     for job in jobs:
         if job.is_done():
             job.state = "reused"
     progress = _Progress(name, jobs, workers, stream)
-    progress.line("start")
+    progress.line(f"start ({launcher.describe()})")
     by_label = {job.label: job for job in jobs}
     cond = threading.Condition()
     stop = threading.Event()
-    running: set[subprocess.Popen] = set()
+    running: set = set()  # handles of the launched jobs (processes or Ray task references)
     running_lock = threading.Lock()
 
     def ready(job: Job) -> bool | None:
@@ -563,19 +576,15 @@ def run_jobs(jobs: list[Job], store: Path, workers: int, name: str, stream=sys.s
         log = logs / f"{job.label.replace(' ', '_').replace('/', '-')}.log"
         progress.line(f"start {job.label}")
         start = time.perf_counter()
-        env = {**os.environ, "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "1"), "PYTHONUNBUFFERED": "1"}
-        with log.open("a") as fh:
-            fh.write(f"\n$ {' '.join(job.argv)}\n")
-            fh.flush()
-            with running_lock:
-                if stop.is_set():
-                    job.state = "pending"
-                    return
-                proc = subprocess.Popen(job.argv, stdout=fh, stderr=subprocess.STDOUT, env=env, start_new_session=True)
-                running.add(proc)
-            code = proc.wait()
-            with running_lock:
-                running.discard(proc)
+        with running_lock:
+            if stop.is_set():
+                job.state = "pending"
+                return
+            handle = launcher.start(job.argv, log)
+            running.add(handle)
+        code = launcher.wait(handle)
+        with running_lock:
+            running.discard(handle)
         seconds = time.perf_counter() - start
         if code in (130, 143) or stop.is_set():
             job.state = "pending"
@@ -584,7 +593,7 @@ def run_jobs(jobs: list[Job], store: Path, workers: int, name: str, stream=sys.s
             return
         job.state = "done" if code == 0 and job.is_done() else "failed"
         progress.record(job, seconds)
-        note = "" if job.state == "done" else f" (exit {code}; see {log})"
+        note = "" if job.state == "done" else f" (exit {code}; see {log}): {last_error_line(log)}"
         progress.line(f"{job.state} {job.label} in {_fmt(seconds)}{note}")
 
     signals_seen: list[int] = []
@@ -603,8 +612,8 @@ def run_jobs(jobs: list[Job], store: Path, workers: int, name: str, stream=sys.s
                 flush=True,
             )
         with running_lock:
-            for proc in running:
-                proc.send_signal(signum)
+            for handle in running:
+                launcher.signal(handle, signum)
 
     previous = {}
     if threading.current_thread() is threading.main_thread():
@@ -636,20 +645,41 @@ def _write_job_file(job: Job) -> None:
 
 def bench_run(run_dir: str | Path, stream=sys.stdout) -> Path:
     """One training run of the suite: train, or resume an interrupted one, then evaluate (``bench-run``)."""
-    from algorithms.config import AlgoConfig
-    from harness.train import evaluate, read_config, resume, train
-
     run_dir = Path(run_dir)
     path = run_dir / "job.json"
     if not path.is_file():
         raise RunError(f"{run_dir} has no job.json: bench-run runs directories planned by `bench`")
     job = json.loads(path.read_text())
+    with Claim(run_dir, stream=stream):  # one worker writes a run; the others wait (or take over a dead one's)
+        _train_and_evaluate(run_dir, job, stream)
+    return run_dir
+
+
+def _evaluated(run_dir: Path, ev: dict) -> bool:
+    try:
+        payload = json.loads((run_dir / "eval.json").read_text())
+    except (OSError, ValueError):
+        return False
+    expect = {"seeds": ev["seeds"], "max_steps": ev["max_steps"]} | (
+        {"num_envs": ev["num_envs"]} if ev["num_envs"] else {}
+    )
+    return all(payload.get(k) == v for k, v in expect.items())
+
+
+def _train_and_evaluate(run_dir: Path, job: dict, stream) -> None:
+    from algorithms.config import AlgoConfig
+    from harness.train import evaluate, read_config, resume, train
+
+    ev = job["eval"]
+    if _training_complete(run_dir, job["epochs"]) and (not ev["seeds"] or _evaluated(run_dir, ev)):
+        print(f"{run_dir.name}: already finished (by another worker)", file=stream, flush=True)
+        return
     if (run_dir / "config.json").is_file():
         config = read_config(run_dir)
         recorded = {k: config[k] for k in ("task", "backend", "seed", "device", "epochs")}
         recorded["algo"] = config["algo_config"].as_dict()
         if _hash(recorded) != job["key"]:
-            raise RunError(f"{run_dir}: config.json does not match the directory's address; move the folder away")
+            raise RunError(f"{run_dir}: config.json does not match the planned run (job.json): move the folder away")
         if not _training_complete(run_dir, job["epochs"]):
             resume(run_dir, command="python -m harness bench-run " + str(run_dir), stream=stream)
     else:
@@ -665,10 +695,8 @@ def bench_run(run_dir: str | Path, stream=sys.stdout) -> Path:
             command="python -m harness bench-run " + str(run_dir),
             stream=stream,
         )
-    ev = job["eval"]
     if ev["seeds"]:
         evaluate(run_dir, seeds=ev["seeds"], num_envs=ev["num_envs"], max_steps=ev["max_steps"], stream=stream)
-    return run_dir
 
 
 def run_suite(
@@ -680,11 +708,18 @@ def run_suite(
     report_only: bool = False,
     command: str | None = None,
     stream=sys.stdout,
+    launcher: str = "local",
+    address: str | None = None,
+    gpus_per_run: float = 0.25,
 ) -> int:
-    """Plan, run what is missing, write the tables and plots; 0 when every job succeeded."""
+    """Plan, run what is missing (on the local or the Ray launcher), write the tables and plots; 0 when
+    every job succeeded."""
+    from harness.launchers import make_launcher
+
     data, spec_path = load_spec(profile, spec_file)
     name = data["suite"]["name"]
-    store = Path(store) / name
+    # absolute: a Ray worker on another node resolves the same path on the shared storage
+    store = Path(store).resolve() / name
     all_jobs = plan(data, store)
     workers = jobs or int(data["suite"].get("jobs", 1))
     if dry_run:
@@ -695,7 +730,13 @@ def run_suite(
         print(f"{len(all_jobs)} jobs; about {_fmt(total / max(workers, 1))} on {workers} workers", file=stream)
         return 0
     if not report_only:
-        run_jobs(all_jobs, store, workers, name, stream)
+        runner = make_launcher(
+            launcher, jobs if launcher == "ray" else workers, address, data["suite"].get("device", "cpu"), gpus_per_run
+        )
+        try:
+            run_jobs(all_jobs, store, workers, name, stream, launcher=runner)
+        finally:
+            runner.close()
     else:
         for job in all_jobs:
             job.state = "reused" if job.is_done() else "pending"

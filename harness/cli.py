@@ -131,6 +131,21 @@ FLAGS: dict[str, dict] = {
     "max_steps": {"type": _positive_int, "help": "cap on steps per evaluation episode"},
     "checkpoint_every": {"type": _positive_int, "default": 1, "help": "epochs between checkpoints"},
     "tolerance": {"type": _positive_float, "help": "max relative gradient error allowed (default 2e-2)"},
+    "jobs": {
+        "type": _positive_int,
+        "help": "jobs at once (bench: the spec's [suite] jobs; sweep: 1, in this process; ray: the cluster's CPUs)",
+    },
+    "launcher": {
+        "choices": ("local", "ray"),
+        "default": "local",
+        "help": "where runs execute: local processes, one per core, or Ray tasks (pip install 'diffsim-bench[ray]')",
+    },
+    "address": {"help": "Ray head HOST:PORT to join (default: RAY_ADDRESS if set, else a new local Ray instance)"},
+    "gpus_per_run": {
+        "type": _positive_float,
+        "default": 0.25,
+        "help": "GPU fraction each run asks Ray for when the device is CUDA",
+    },
     "backend_option": {
         "type": _option,
         "action": "append",
@@ -245,7 +260,17 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("sweep", help="train (or resume) and evaluate several algorithms and seeds, then report")
     names = ("backend", "task", "algos", "seeds", "epochs", "num_envs", "horizon", "device", "eval_seeds", "max_steps")
-    _add(p, "sweep", *names, "out", required=("backend", "task", "algos", "epochs", "out"))
+    _add(
+        p,
+        "sweep",
+        *names,
+        "out",
+        "jobs",
+        "launcher",
+        "address",
+        "gpus_per_run",
+        required=("backend", "task", "algos", "epochs", "out"),
+    )
 
     p = sub.add_parser("grad-growth", help="open-loop action-gradient norms along a run's policy trajectories")
     _add(p, "grad-growth", "run", required=("run",))
@@ -335,7 +360,7 @@ def build_parser() -> argparse.ArgumentParser:
         default="results/bench",
         help="runs, checks, logs and tables go to STORE/NAME, NAME the spec's suite name (default: %(default)s)",
     )
-    p.add_argument("--jobs", type=_positive_int, help="processes at once (default: the spec's [suite] jobs)")
+    _add(p, "bench", "jobs", "launcher", "address", "gpus_per_run")
     p.add_argument("--dry-run", action="store_true", help="list the jobs, their state and estimated cost; run none")
     p.add_argument("--report-only", action="store_true", help="write the tables and plots from what is finished")
 
@@ -635,6 +660,8 @@ def cmd_sweep(args) -> int:
         raise BadInput("--out is empty: name a directory for the sweep")
     if Path(args.out).exists() and not Path(args.out).is_dir():
         raise BadInput(f"--out {args.out} is an existing file, not a directory")
+    if args.launcher != "local" or (args.jobs or 1) > 1:
+        return _sweep_on_launcher(args, configs)
     runs = []
     for name, cfg in configs.items():
         for seed in args.seeds:
@@ -652,6 +679,48 @@ def cmd_sweep(args) -> int:
     return 0
 
 
+def _sweep_on_launcher(args, configs: dict) -> int:
+    """The sweep's runs as jobs of the suite's runner: local processes (--jobs N) or Ray tasks. Each run
+    is one ``bench-run`` job in the sweep's folder; its log goes to OUT/logs."""
+    from pathlib import Path
+
+    from harness.bench import RunSpec, run_jobs, train_job
+    from harness.launchers import make_launcher
+    from harness.report import write_report
+
+    out = Path(args.out).resolve()
+    jobs = []
+    for name in configs:
+        for seed in args.seeds:
+            spec = RunSpec(
+                task=args.task,
+                backend=args.backend,
+                algo=name,
+                seed=seed,
+                epochs=args.epochs,
+                num_envs=args.num_envs,
+                horizon=args.horizon,
+                device=args.device,
+                eval_seeds=args.eval_seeds,
+                eval_max_steps=args.max_steps,
+            )
+            jobs.append(train_job(spec, out / f"{args.task}_{args.backend}_{name}_s{seed}"))
+    launcher = make_launcher(args.launcher, args.jobs, args.address, args.device, args.gpus_per_run)
+    try:
+        run_jobs(jobs, out, launcher.workers, "sweep", launcher=launcher)
+    finally:
+        launcher.close()
+    failed = [job.label for job in jobs if job.state != "done" and job.state != "reused"]
+    runs = [job.run_dir for job in jobs if job.state in ("done", "reused")]
+    if runs:
+        paths = write_report(runs, out / "summary", _command())
+        print(Path(paths[0]).read_text())
+    if failed:
+        print(f"{len(failed)} run(s) failed (logs in {out / 'logs'}): {', '.join(failed)}", file=sys.stderr)
+        return 1
+    return 0
+
+
 def cmd_bench(args) -> int:
     from harness.bench import run_suite
 
@@ -663,6 +732,9 @@ def cmd_bench(args) -> int:
         dry_run=args.dry_run,
         report_only=args.report_only,
         command=_command(),
+        launcher=args.launcher,
+        address=args.address,
+        gpus_per_run=args.gpus_per_run,
     )
 
 

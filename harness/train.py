@@ -89,7 +89,8 @@ def save_checkpoint(path: Path, algo: FirstOrderActorCritic, env, progress: dict
         "rng": _rng_state(),
         "progress": progress,
     }
-    tmp = path.with_suffix(".pt.tmp")
+    # a name of this writer's own: a worker presumed dead (harness/claims.py) never shares a half-written file
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
     with tmp.open("wb") as fh:
         torch.save(payload, fh)
         fh.flush()

@@ -128,7 +128,7 @@ def test_finished_runs_are_reused_and_interrupted_ones_resumed(tmp_path):
 
     assert run_suite(spec_file=str(spec), store=store, stream=Stream()) == 0
     text = "".join(log)
-    assert "jobs 8/8 (runs 8/8; 0 reused, 0 failed)" in text and "ETA" in text
+    assert "jobs 8/8 (runs 8/8; 0 running, 0 reused, 0 failed)" in text and "ETA" in text
     run_dirs = sorted((store / "pm" / "runs").iterdir())
     assert len(run_dirs) == 8
     stamps = {d.name: (d / "metrics.jsonl").stat().st_mtime_ns for d in run_dirs}
@@ -215,7 +215,7 @@ def test_newcomer_tiny_spec_end_to_end(tmp_path):
         timeout=900,
     )
     assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
-    assert "jobs 5/5 (runs 2/2; 0 reused, 0 failed)" in out.stdout
+    assert "jobs 5/5 (runs 2/2; 0 running, 0 reused, 0 failed)" in out.stdout
     tables = store / "tiny"
     closing = out.stdout[out.stdout.index("[bench tiny] wrote") :]
     for name in ("returns", "grad_variance_vs_h", "wall_time", "throughput", "landscape", "checks"):

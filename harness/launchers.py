@@ -1,0 +1,187 @@
+"""Where the suite's jobs run: local processes (the default) or Ray tasks on a cluster.
+
+Every job is the same command line either way (``python -m harness bench-run RUN``, ``gradcheck ...``),
+its output appended to ``STORE/NAME/logs/JOB.log`` and its results written into the content-addressed
+store, so a cluster's results land where a local run's would, in the same folders and tables.
+
+* ``LocalLauncher``: one process per job, ``--jobs`` at a time (one per core on a CPU machine: a Warp
+  CPU kernel uses one thread). Each job runs in its own session; the suite passes Ctrl-C/SIGTERM on.
+* ``RayLauncher`` (``--launcher ray [--address HOST:PORT]``; ``pip install 'diffsim-bench[ray]'``): each
+  job is a Ray task that asks for one CPU, plus ``--gpus-per-run`` of a GPU when the suite's device is
+  CUDA, and runs the command in a child process on whichever node Ray picks. The store must be a path
+  every node sees (shared storage). A task whose worker dies (node lost, process killed) is retried by
+  Ray; the retry resumes the run from its last checkpoint, and the run's claim (harness/claims.py)
+  guarantees that the dead worker, or a second suite racing for the same spec, never writes the run
+  at the same time. The child dies with its Ray worker (``PR_SET_PDEATHSIG``), so a killed worker
+  leaves no orphan training behind.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+from harness.results import RunError
+
+LAUNCHERS = ("local", "ray")
+RAY_RETRIES = 3  # attempts after the first when a worker dies or a child is killed
+_FORWARDED_ENV = ("OMP_", "WARP_", "DIFFSIM_", "CUDA_", "PYTHON")  # the driver's settings that reach every job
+
+
+def _job_env() -> dict:
+    env = {k: v for k, v in os.environ.items() if k.startswith(_FORWARDED_ENV)}
+    env.setdefault("OMP_NUM_THREADS", "1")
+    env["PYTHONUNBUFFERED"] = "1"
+    return env
+
+
+def last_error_line(log: Path) -> str:
+    """The last line of a job's log that says what went wrong (``error:``, an exception), else its last line."""
+    try:
+        lines = [line.strip() for line in log.read_text(errors="replace").splitlines() if line.strip()]
+    except OSError:
+        return ""
+    for line in reversed(lines[-200:]):
+        if line.startswith("error:") or "Error" in line.split(":", 1)[0] or line.startswith("Traceback"):
+            return line[:300]
+    return lines[-1][:300] if lines else ""
+
+
+class LocalLauncher:
+    """Jobs as child processes of this one."""
+
+    name = "local"
+
+    def __init__(self, workers: int):
+        self.workers = max(1, workers)
+
+    def describe(self) -> str:
+        return f"local, {self.workers} process(es) at once"
+
+    def start(self, argv: list[str], log: Path):
+        fh = log.open("a")
+        fh.write(f"\n$ {' '.join(argv)}\n")
+        fh.flush()
+        env = {**os.environ, **_job_env()}
+        proc = subprocess.Popen(argv, stdout=fh, stderr=subprocess.STDOUT, env=env, start_new_session=True)
+        fh.close()
+        return proc
+
+    def wait(self, handle) -> int:
+        return handle.wait()
+
+    def signal(self, handle, signum: int) -> None:
+        handle.send_signal(signum)
+
+    def close(self) -> None:
+        pass
+
+
+# -- Ray ------------------------------------------------------------------------------------------
+
+
+class ChildKilled(RuntimeError):
+    """The job's process died of a signal nobody sent on purpose (OOM killer, SIGKILL): Ray retries it."""
+
+
+def _die_with_parent() -> None:  # pragma: no cover - runs in the forked child
+    import ctypes
+
+    libc = ctypes.CDLL(None, use_errno=True)
+    libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG: killed when the Ray worker that started it dies
+    if os.getppid() == 1:
+        os._exit(137)  # the worker died before prctl took effect
+
+
+def run_job_in_this_process(words: list[str], log: str, env: dict, cwd: str | None) -> int:
+    """Body of the Ray task: run ``python -m harness WORDS`` here, appending to ``log``; its exit code.
+
+    Ray's ``ray.cancel`` arrives as KeyboardInterrupt: it is passed on as SIGINT, so a training job
+    checkpoints at its epoch boundary and exits 130 (resumable), as with a local Ctrl-C.
+    """
+    argv = [sys.executable, "-m", "harness", *words]
+    attempt = os.environ.get("RAY_TASK_ATTEMPT", "")
+    with open(log, "a") as fh:
+        fh.write(f"\n$ {' '.join(argv)}   [ray worker {socket.gethostname()} pid {os.getpid()}{attempt}]\n")
+        fh.flush()
+        proc = subprocess.Popen(
+            argv,
+            stdout=fh,
+            stderr=subprocess.STDOUT,
+            env={**os.environ, **env},
+            cwd=cwd if cwd and Path(cwd).is_dir() else None,
+            preexec_fn=_die_with_parent,
+        )
+        try:
+            code = proc.wait()
+        except KeyboardInterrupt:
+            proc.send_signal(signal.SIGINT)
+            code = proc.wait()
+    if code < 0 and -code not in (signal.SIGINT, signal.SIGTERM):
+        raise ChildKilled(f"{' '.join(words[:2])}: killed by {signal.Signals(-code).name}")
+    return code
+
+
+class RayLauncher:
+    """Jobs as Ray tasks: one CPU each (and a GPU fraction on CUDA), retried when their worker dies."""
+
+    name = "ray"
+
+    def __init__(self, address: str | None, workers: int | None, device: str, gpus_per_run: float):
+        try:
+            import ray
+        except ImportError:
+            raise RunError("--launcher ray needs Ray: pip install 'diffsim-bench[ray]'") from None
+        self.ray = ray
+        try:
+            ray.init(address=address, log_to_driver=False, configure_logging=False, include_dashboard=False)
+        except Exception as exc:  # a wrong address, no cluster there
+            where = address or "a new local Ray instance"
+            raise RunError(f"--launcher ray: cannot connect to {where}: {str(exc).splitlines()[0]}") from None
+        cpus = int(ray.cluster_resources().get("CPU", 1))
+        self.workers = workers or cpus
+        self.cpus = cpus
+        self.gpus = float(gpus_per_run) if device.startswith("cuda") else 0.0
+        self.address = address
+        self.task = ray.remote(run_job_in_this_process).options(
+            num_cpus=1, num_gpus=self.gpus, max_retries=RAY_RETRIES, retry_exceptions=[ChildKilled]
+        )
+        self.cwd = os.getcwd()
+
+    def describe(self) -> str:
+        gpu = f", {self.gpus:g} GPU per run" if self.gpus else ""
+        return f"ray at {self.address or 'a local instance'}: {self.cpus} CPUs, {self.workers} jobs in flight{gpu}"
+
+    def start(self, argv: list[str], log: Path):
+        words = argv[3:] if argv[1:3] == ["-m", "harness"] else argv
+        return self.task.remote(words, str(log), _job_env(), self.cwd)
+
+    def wait(self, handle) -> int:
+        ray = self.ray
+        try:
+            return int(ray.get(handle))
+        except ray.exceptions.TaskCancelledError:
+            return 130
+        except ray.exceptions.RayError as exc:
+            print(f"ray: {str(exc).strip().splitlines()[-1][:300]}", file=sys.stderr, flush=True)
+            return 1
+
+    def signal(self, handle, signum: int) -> None:
+        self.ray.cancel(handle, force=False)
+
+    def close(self) -> None:
+        self.ray.shutdown()
+
+
+def make_launcher(kind: str, workers: int | None, address: str | None, device: str, gpus_per_run: float):
+    if kind == "local":
+        if address:
+            raise RunError("--address is for --launcher ray")
+        return LocalLauncher(workers or 1)
+    if kind == "ray":
+        return RayLauncher(address, workers, device, gpus_per_run)
+    raise RunError(f"--launcher must be one of {', '.join(LAUNCHERS)}, got {kind!r}")
