@@ -91,22 +91,26 @@ class ChildKilled(RuntimeError):
 def _die_with_parent() -> None:  # pragma: no cover - runs in the forked child
     import ctypes
 
+    # Ray's worker threads block SIGINT, and a blocked signal stays blocked across exec: unblock it, or
+    # the job could never be asked to checkpoint and stop
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
     libc = ctypes.CDLL(None, use_errno=True)
     libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG: killed when the Ray worker that started it dies
     if os.getppid() == 1:
         os._exit(137)  # the worker died before prctl took effect
 
 
-def run_job_in_this_process(words: list[str], log: str, env: dict, cwd: str | None) -> int:
+def run_job_in_this_process(words: list[str], log: str, env: dict, cwd: str | None, stop_file: str) -> int:
     """Body of the Ray task: run ``python -m harness WORDS`` here, appending to ``log``; its exit code.
 
-    Ray's ``ray.cancel`` arrives as KeyboardInterrupt: it is passed on as SIGINT, so a training job
-    checkpoints at its epoch boundary and exits 130 (resumable), as with a local Ctrl-C.
+    The driver asks a job to stop by creating ``stop_file`` (on the shared store, so it works on any
+    node): the job's process gets SIGINT, so a training job checkpoints at its epoch boundary and exits
+    130 (resumable), as with a local Ctrl-C. The wait polls, because a blocking wait would also keep
+    Ray's own cancellation (an exception raised in this thread) from ever arriving.
     """
     argv = [sys.executable, "-m", "harness", *words]
-    attempt = os.environ.get("RAY_TASK_ATTEMPT", "")
     with open(log, "a") as fh:
-        fh.write(f"\n$ {' '.join(argv)}   [ray worker {socket.gethostname()} pid {os.getpid()}{attempt}]\n")
+        fh.write(f"\n$ {' '.join(argv)}   [ray worker {socket.gethostname()} pid {os.getpid()}]\n")
         fh.flush()
         proc = subprocess.Popen(
             argv,
@@ -117,13 +121,34 @@ def run_job_in_this_process(words: list[str], log: str, env: dict, cwd: str | No
             preexec_fn=_die_with_parent,
         )
         try:
-            code = proc.wait()
-        except KeyboardInterrupt:
-            proc.send_signal(signal.SIGINT)
-            code = proc.wait()
+            while True:
+                try:
+                    code = proc.wait(timeout=0.5)
+                    break
+                except subprocess.TimeoutExpired:
+                    if os.path.exists(stop_file):
+                        proc.send_signal(signal.SIGINT)
+                        code = proc.wait()
+                        break
+        except KeyboardInterrupt:  # ray.cancel: stop the job at once (it resumes from its last checkpoint)
+            proc.kill()
+            proc.wait()
+            raise
     if code < 0 and -code not in (signal.SIGINT, signal.SIGTERM):
         raise ChildKilled(f"{' '.join(words[:2])}: killed by {signal.Signals(-code).name}")
     return code
+
+
+def _reachable(address: str) -> None:
+    """Refuse a malformed or unreachable head address in one line (ray.init would retry for minutes)."""
+    address = address.removeprefix("ray://")
+    host, sep, port = address.rpartition(":")
+    if not sep or not host or not port.isdigit():
+        raise RunError(f"--address {address}: expected HOST:PORT of a Ray head, e.g. 10.0.0.1:6379")
+    try:
+        socket.create_connection((host, int(port)), timeout=10).close()
+    except OSError as exc:
+        raise RunError(f"--address {address}: no Ray head answers there ({exc.strerror or exc})") from None
 
 
 class RayLauncher:
@@ -137,6 +162,8 @@ class RayLauncher:
         except ImportError:
             raise RunError("--launcher ray needs Ray: pip install 'diffsim-bench[ray]'") from None
         self.ray = ray
+        if address and address != "auto":
+            _reachable(address)
         try:
             ray.init(address=address, log_to_driver=False, configure_logging=False, include_dashboard=False)
         except Exception as exc:  # a wrong address, no cluster there
@@ -151,6 +178,7 @@ class RayLauncher:
             num_cpus=1, num_gpus=self.gpus, max_retries=RAY_RETRIES, retry_exceptions=[ChildKilled]
         )
         self.cwd = os.getcwd()
+        self.stop_files: dict = {}  # task reference -> the file that asks it to stop
 
     def describe(self) -> str:
         gpu = f", {self.gpus:g} GPU per run" if self.gpus else ""
@@ -158,7 +186,11 @@ class RayLauncher:
 
     def start(self, argv: list[str], log: Path):
         words = argv[3:] if argv[1:3] == ["-m", "harness"] else argv
-        return self.task.remote(words, str(log), _job_env(), self.cwd)
+        stop_file = log.with_name(log.name + ".stop")
+        stop_file.unlink(missing_ok=True)
+        handle = self.task.remote(words, str(log), _job_env(), self.cwd, str(stop_file))
+        self.stop_files[handle] = stop_file
+        return handle
 
     def wait(self, handle) -> int:
         ray = self.ray
@@ -169,9 +201,16 @@ class RayLauncher:
         except ray.exceptions.RayError as exc:
             print(f"ray: {str(exc).strip().splitlines()[-1][:300]}", file=sys.stderr, flush=True)
             return 1
+        finally:
+            self.stop_files.pop(handle, Path("/nonexistent")).unlink(missing_ok=True)
 
     def signal(self, handle, signum: int) -> None:
-        self.ray.cancel(handle, force=False)
+        """First signal: ask the job to checkpoint and stop (its stop file); a second: cancel it at once."""
+        stop_file = self.stop_files.get(handle)
+        if stop_file is not None and not stop_file.exists():
+            stop_file.touch()
+        else:
+            self.ray.cancel(handle, force=True)
 
     def close(self) -> None:
         self.ray.shutdown()

@@ -239,7 +239,9 @@ def test_newcomer_tiny_spec_end_to_end(tmp_path):
         env=_env(),
         timeout=300,
     )
-    assert again.returncode == 0 and "jobs 5/5 (runs 2/2; 5 reused, 0 failed)" in again.stdout, again.stdout[-2000:]
+    assert again.returncode == 0 and "jobs 5/5 (runs 2/2; 0 running, 5 reused, 0 failed)" in again.stdout, again.stdout[
+        -2000:
+    ]
 
 
 @POINTMASS

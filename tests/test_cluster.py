@@ -341,50 +341,77 @@ def test_ray_launcher_matches_local_and_survives_a_killed_worker(tmp_path, ray_h
     assert _tables(ray_store / "cluster") == _tables(local_store / "cluster")
 
 
+SWEEP = ["--backend", "pointmass", "--task", "pointmass", "--algos", "shac", "shac-tdadpt", "--seeds", "0"]
+SWEEP += ["--epochs", "3", "--num-envs", "4", "--horizon", "4", "--eval-seeds", "1"]
+SWEEP_RUNS = ("pointmass_pointmass_shac_s0", "pointmass_pointmass_shac-tdadpt_s0")
+
+
+def _sweep(out: Path, *extra: str, env: dict | None = None) -> str:
+    done = subprocess.run(
+        [sys.executable, "-m", "harness", "sweep", *SWEEP, "--out", str(out), *extra],
+        capture_output=True,
+        text=True,
+        env=env or _env(),
+        timeout=600,
+    )
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    return done.stdout
+
+
+@pytest.fixture(scope="module")
+def sweep_in_one_process(tmp_path_factory) -> Path:
+    """The reference: the sweep's runs trained one after another in the sweep's own process."""
+    out = tmp_path_factory.mktemp("sweep") / "one"
+    _sweep(out)
+    return out
+
+
 @POINTMASS
-def test_sweep_on_ray_writes_the_same_runs(tmp_path, ray_head):
-    words = ["--backend", "pointmass", "--task", "pointmass", "--algos", "shac", "sapo", "--seeds", "0"]
-    words += ["--epochs", "3", "--num-envs", "4", "--horizon", "4", "--eval-seeds", "1"]
-    local = subprocess.run(
-        [sys.executable, "-m", "harness", "sweep", *words, "--out", str(tmp_path / "local")],
-        capture_output=True,
-        text=True,
-        env=_env(),
-        timeout=600,
-    )
-    assert local.returncode == 0, local.stderr[-2000:]
-    on_ray = subprocess.run(
-        [sys.executable, "-m", "harness", "sweep", *words, "--out", str(tmp_path / "ray")]
-        + ["--launcher", "ray", "--address", ray_head["address"]],
-        capture_output=True,
-        text=True,
-        env=ray_head["env"],
-        timeout=600,
-    )
-    assert on_ray.returncode == 0, on_ray.stdout[-2000:] + on_ray.stderr[-2000:]
-    for name in ("pointmass_pointmass_shac_s0", "pointmass_pointmass_sapo_s0"):
-        assert _rows(tmp_path / "ray" / name) == _rows(tmp_path / "local" / name)
+def test_sweep_with_jobs_runs_in_processes_and_matches_one_process(tmp_path, sweep_in_one_process):
+    stdout = _sweep(tmp_path / "pool", "--jobs", "2")
+    assert "jobs 2/2 (runs 2/2; 0 running" in stdout  # the suite's runner, two processes
+    for name in SWEEP_RUNS:
+        assert _rows(tmp_path / "pool" / name) == _rows(sweep_in_one_process / name)
+    assert (tmp_path / "pool" / "logs").is_dir() and (tmp_path / "pool" / "summary.md").is_file()
+
+
+@POINTMASS
+def test_sweep_on_ray_writes_the_same_runs(tmp_path, ray_head, sweep_in_one_process):
+    _sweep(tmp_path / "ray", "--launcher", "ray", "--address", ray_head["address"], env=ray_head["env"])
+    for name in SWEEP_RUNS:
+        assert _rows(tmp_path / "ray" / name) == _rows(sweep_in_one_process / name)
         ray_eval = json.loads((tmp_path / "ray" / name / "eval.json").read_text())
-        local_eval = json.loads((tmp_path / "local" / name / "eval.json").read_text())
+        local_eval = json.loads((sweep_in_one_process / name / "eval.json").read_text())
         assert ray_eval["final"] == local_eval["final"]
 
 
 @POINTMASS
-def test_sweep_with_jobs_runs_in_processes_and_matches_one_process(tmp_path):
-    words = ["--backend", "pointmass", "--task", "pointmass", "--algos", "shac", "shac-tdadpt", "--seeds", "0"]
-    words += ["--epochs", "3", "--num-envs", "4", "--horizon", "4", "--eval-seeds", "1"]
-    outs = {}
-    for label, extra in (("one", []), ("pool", ["--jobs", "2"])):
-        done = subprocess.run(
-            [sys.executable, "-m", "harness", "sweep", *words, "--out", str(tmp_path / label), *extra],
-            capture_output=True,
-            text=True,
-            env=_env(),
-            timeout=600,
-        )
-        assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
-        outs[label] = done.stdout
-    assert "jobs 2/2 (runs 2/2; 0 running" in outs["pool"]  # the suite's runner, two processes
-    for name in ("pointmass_pointmass_shac_s0", "pointmass_pointmass_shac-tdadpt_s0"):
-        assert _rows(tmp_path / "pool" / name) == _rows(tmp_path / "one" / name)
-    assert (tmp_path / "pool" / "logs").is_dir() and (tmp_path / "pool" / "summary.md").is_file()
+def test_ctrl_c_stops_a_ray_suite_resumably(tmp_path, ray_head):
+    """SIGINT to the driver: the jobs on the Ray workers checkpoint and stop (exit 130), claims are released,
+    and the same command finishes every run with each epoch once."""
+    spec = tmp_path / "spec.toml"
+    spec.write_text(RACE_SPEC.replace("epochs = 12", "epochs = 40"))
+    store = tmp_path / "store"
+    command = [sys.executable, "-m", "harness", "bench", "--spec", str(spec), "--store", str(store)]
+    command += ["--launcher", "ray", "--address", ray_head["address"]]
+    env = dict(ray_head["env"], DIFFSIM_BENCH_TEST_WRITE_DELAY="0.1")
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+    runs = store / "race" / "runs"
+    deadline = time.time() + 300
+    while time.time() < deadline:
+        metrics = list(runs.glob("*/metrics.jsonl")) if runs.exists() else []
+        if len(metrics) == 2 and min(len(m.read_text().splitlines()) for m in metrics) >= 3:
+            break
+        time.sleep(0.1)
+    proc.send_signal(signal.SIGINT)
+    out, _ = proc.communicate(timeout=300)
+    assert proc.returncode == 130, out[-3000:]
+    for run in runs.iterdir():
+        assert not (run / "eval.json").exists(), "a run finished before the signal: nothing was interrupted"
+        assert generations(run) == [], "a stopped job kept its claim"
+        assert "SIGINT: finishing this epoch" in next((store / "race" / "logs").glob(f"{run.name}*.log")).read_text()
+    again = subprocess.run(command, capture_output=True, text=True, env=ray_head["env"], timeout=600)
+    assert again.returncode == 0, again.stdout[-3000:]
+    for run in runs.iterdir():
+        assert [r["epoch"] for r in _rows(run)] == list(range(40)), run.name
+        assert (run / "eval.json").is_file()
