@@ -206,30 +206,16 @@ def test_two_suites_racing_for_one_spec_train_each_run_once(tmp_path):
 
 # -- the Ray launcher against a real Ray head -------------------------------------------------------
 
-RAY_SPEC = """
-[suite]
-name = "cluster"
-jobs = 2
-
-[eval]
-seeds = 2
-num_envs = 4
-
-[[train]]
-backends = ["pointmass"]
-tasks = ["pointmass"]
-algos = ["shac", "shac-tdadpt"]
-seeds = [0]
-horizons = [4]
-epochs = 24
-num_envs = 4
-
+RAY_SPEC = (
+    RACE_SPEC.replace('name = "race"', 'name = "cluster"').replace("epochs = 12", "epochs = 24")
+    + """
 [[check]]              # fails at once (exit 2): the progress must name it with its error line
 kind = "gradcheck"
 backends = ["pointmass"]
 tasks = ["pointmass"]
 args = ["--steps", "0"]
 """
+)
 
 
 def _free_port() -> int:
