@@ -95,14 +95,17 @@ class RunRecord:
     cross_evaluations: dict[str, dict] = field(default_factory=dict)  # file name -> eval_on_*/sim2sim_on_* payload
     landscape: dict | None = None
     commit: str | None = None  # the commit the run was trained at (config.json's provenance)
+    planned_epochs: int | None = None  # config.json's epochs: what the run was asked for (``epochs``: what it did)
 
     @property
     def base(self) -> str:
         return base_algo(self.algo)
 
     @property
-    def group(self) -> tuple[str, str, str, int]:
-        return (self.task, self.backend, self.algo, self.horizon)
+    def group(self) -> tuple:
+        """What a table row pools seeds over: the same task, backend, algorithm, horizon *and* setting (envs,
+        planned epochs), so a 30-epoch h-sweep run never counts as a seed of a 100-epoch headline run."""
+        return (self.task, self.backend, self.algo, self.horizon, self.num_envs, self.planned_epochs)
 
     @property
     def epochs(self) -> int:
@@ -223,7 +226,15 @@ def load_run(run_dir: Path, stream=sys.stdout) -> RunRecord | None:
         cross_evaluations=cross,
         landscape=landscape,
         commit=(config.get("provenance") or {}).get("git_commit"),
+        planned_epochs=_int_or_none(config.get("epochs", algo_cfg.get("max_epochs"))),
     )
+
+
+def _int_or_none(value) -> int | None:
+    try:
+        return int(value)
+    except (TypeError, ValueError):
+        return None
 
 
 @dataclass
@@ -332,7 +343,8 @@ def _group_runs(runs: Iterable[RunRecord], key: Callable[[RunRecord], tuple]) ->
 
 
 def _by_group(runs: Iterable[RunRecord]) -> dict[tuple, list[RunRecord]]:
-    return _group_runs(runs, lambda r: (r.task, r.backend, r.horizon, r.algo))
+    """Runs by (task, backend, num_envs, planned epochs, horizon, algo): :attr:`RunRecord.group`, ordered for tables."""
+    return _group_runs(runs, lambda r: (r.task, r.backend, r.num_envs, r.planned_epochs, r.horizon, r.algo))
 
 
 def _value_or_range(values: Iterable) -> int | str | None:
@@ -349,16 +361,17 @@ def _std(values: np.ndarray) -> float:
 
 # -- tables (pure functions of the records) -------------------------------------------------------
 def returns_table(runs: list[RunRecord]) -> pd.DataFrame:
-    """Final evaluation return per (task, backend, algo, horizon) over training seeds; runs without eval.json
-    are left out. ``improvement_*``: IQM(algo) - IQM(base algo) at the same task, backend and horizon."""
+    """Final evaluation return per (task, backend, num_envs, planned epochs, horizon, algo) over training seeds;
+    runs without eval.json are left out. ``improvement_*``: IQM(algo) - IQM(base algo) in the same group but
+    for the algorithm."""
     groups = _by_group(r for r in runs if r.evaluation is not None)
     finals = {key: np.array([r.final_return for r in members], dtype=float) for key, members in groups.items()}
     rows = []
-    for (task, backend, horizon, algo), members in groups.items():
-        final = finals[(task, backend, horizon, algo)]
+    for (task, backend, num_envs, planned, horizon, algo), members in groups.items():
+        final = finals[(task, backend, num_envs, planned, horizon, algo)]
         point, low, high = iqm_with_ci(final)
         base = base_algo(algo)
-        base_final = finals.get((task, backend, horizon, base)) if base != algo else None
+        base_final = finals.get((task, backend, num_envs, planned, horizon, base)) if base != algo else None
         gain = iqm_difference_with_ci(final, base_final) if base_final is not None else (math.nan,) * 3
         rows.append(
             {
@@ -366,6 +379,7 @@ def returns_table(runs: list[RunRecord]) -> pd.DataFrame:
                 "backend": backend,
                 "algo": algo,
                 "horizon": horizon,
+                "num_envs": num_envs,
                 "seeds": len(members),
                 "epochs": _value_or_range(r.epochs for r in members),
                 "env_steps": _value_or_range(r.env_steps for r in members),
@@ -392,6 +406,7 @@ _RETURNS_COLUMNS = [
     "backend",
     "algo",
     "horizon",
+    "num_envs",
     "seeds",
     "epochs",
     "env_steps",
@@ -412,9 +427,9 @@ _RETURNS_COLUMNS = [
 
 
 def grad_variance_table(runs: list[RunRecord]) -> pd.DataFrame:
-    """Median, Q1 and Q3 of ``actor_grad_var`` pooled over every epoch of every seed (NaNs dropped)."""
+    """Median, Q1 and Q3 of ``actor_grad_var`` pooled over every epoch of every seed of a group (NaNs dropped)."""
     rows = []
-    for (task, backend, horizon, algo), members in _by_group(r for r in runs if r.epochs).items():
+    for (task, backend, num_envs, planned, horizon, algo), members in _by_group(r for r in runs if r.epochs).items():
         pooled = np.concatenate([_column(r.metrics, "actor_grad_var").to_numpy() for r in members])
         pooled = pooled[np.isfinite(pooled)]
         q1, median, q3 = np.percentile(pooled, [25, 50, 75]) if pooled.size else (math.nan,) * 3
@@ -423,6 +438,8 @@ def grad_variance_table(runs: list[RunRecord]) -> pd.DataFrame:
                 "task": task,
                 "backend": backend,
                 "algo": algo,
+                "num_envs": num_envs,
+                "epochs": planned,
                 "horizon": horizon,
                 "seeds": len(members),
                 "values": int(pooled.size),
@@ -431,15 +448,17 @@ def grad_variance_table(runs: list[RunRecord]) -> pd.DataFrame:
                 "q3": float(q3),
             }
         )
-    columns = ["task", "backend", "algo", "horizon", "seeds", "values", "median", "q1", "q3"]
+    columns = ["task", "backend", "algo", "num_envs", "epochs", "horizon", "seeds", "values", "median", "q1", "q3"]
     return pd.DataFrame(rows, columns=columns)
 
 
 def grad_variance_growth_table(per_horizon: pd.DataFrame) -> pd.DataFrame:
-    """Per (task, backend, algo) with a finite median at more than one horizon: median(h_max) / median(h_min)."""
+    """Per (task, backend, algo, num_envs, planned epochs) with a finite median at more than one horizon:
+    median(h_max) / median(h_min). Runs of another setting at some h never stand in for the sweep's."""
     rows = []
     finite = per_horizon[np.isfinite(per_horizon["median"].astype(float))]
-    for (task, backend, algo), sub in finite.groupby(["task", "backend", "algo"], sort=False):
+    keys = ["task", "backend", "algo", "num_envs", "epochs"]
+    for (task, backend, algo, num_envs, planned), sub in finite.groupby(keys, sort=False, dropna=False):
         if sub["horizon"].nunique() < 2:
             continue
         low, high = sub.loc[sub["horizon"].idxmin()], sub.loc[sub["horizon"].idxmax()]
@@ -448,6 +467,8 @@ def grad_variance_growth_table(per_horizon: pd.DataFrame) -> pd.DataFrame:
                 "task": task,
                 "backend": backend,
                 "algo": algo,
+                "num_envs": num_envs,
+                "epochs": planned,
                 "h_min": int(low["horizon"]),
                 "h_max": int(high["horizon"]),
                 "median_h_min": float(low["median"]),
@@ -455,7 +476,8 @@ def grad_variance_growth_table(per_horizon: pd.DataFrame) -> pd.DataFrame:
                 "growth_factor": float(high["median"] / low["median"]) if low["median"] else math.nan,
             }
         )
-    columns = ["task", "backend", "algo", "h_min", "h_max", "median_h_min", "median_h_max", "growth_factor"]
+    columns = ["task", "backend", "algo", "num_envs", "epochs", "h_min", "h_max", "median_h_min", "median_h_max"]
+    columns.append("growth_factor")
     return pd.DataFrame(rows, columns=columns)
 
 
@@ -492,6 +514,7 @@ def wall_time_table(runs: list[RunRecord]) -> pd.DataFrame:
                 "backend": run.backend,
                 "algo": run.algo,
                 "horizon": run.horizon,
+                "num_envs": run.num_envs,
                 "seed": run.seed,
                 "epochs": run.epochs,
                 "env_steps": run.env_steps,
@@ -503,7 +526,8 @@ def wall_time_table(runs: list[RunRecord]) -> pd.DataFrame:
                 {f"{stem}_frac": seconds[stem] / run.wall_s if run.wall_s else math.nan for stem, _, _ in TIME_PARTS}
             )
             rows.append(row)
-    columns = ["run", "task", "backend", "algo", "horizon", "seed", "epochs", "env_steps", "wall_min", "s_per_epoch"]
+    columns = ["run", "task", "backend", "algo", "horizon", "num_envs", "seed", "epochs", "env_steps", "wall_min"]
+    columns.append("s_per_epoch")
     columns += [f"{stem}_{unit}" for unit in ("min", "frac") for stem, _, _ in TIME_PARTS]
     return pd.DataFrame(rows, columns=columns)
 
@@ -559,14 +583,15 @@ BACKEND_MEASURES = ("seeds", "epochs", "env_steps", "iqm_final", "wall_min_mean"
 
 
 def backends_table(runs: list[RunRecord]) -> pd.DataFrame:
-    """One row per (task, algo, horizon) trained on at least 2 backends, columns ``BACKEND_MEASURE`` per backend.
+    """One row per (task, algo, horizon, num_envs, planned epochs) trained on at least 2 backends, columns
+    ``BACKEND_MEASURE`` per backend.
 
     ``seeds`` counts every run (wall time is known without an evaluation); ``iqm_final`` rests on the
     evaluated ones.
     """
     long_rows = []
-    for (task, horizon, algo, backend), members in _group_runs(
-        (r for r in runs if r.epochs), lambda r: (r.task, r.horizon, r.algo, r.backend)
+    for (task, num_envs, planned, horizon, algo, backend), members in _group_runs(
+        (r for r in runs if r.epochs), lambda r: (r.task, r.num_envs, r.planned_epochs, r.horizon, r.algo, r.backend)
     ).items():
         evaluated = [r.final_return for r in members if r.evaluation is not None]
         long_rows.append(
@@ -574,6 +599,8 @@ def backends_table(runs: list[RunRecord]) -> pd.DataFrame:
                 "task": task,
                 "algo": algo,
                 "horizon": horizon,
+                "num_envs": num_envs,
+                "planned_epochs": planned,
                 "backend": backend,
                 "seeds": len(members),
                 "epochs": _value_or_range(r.epochs for r in members),
@@ -583,19 +610,20 @@ def backends_table(runs: list[RunRecord]) -> pd.DataFrame:
                 "s_per_epoch_mean": float(np.mean([r.wall_s / r.epochs for r in members])),
             }
         )
-    long = pd.DataFrame(long_rows, columns=["task", "algo", "horizon", "backend", *BACKEND_MEASURES])
+    keys = ["task", "algo", "horizon", "num_envs", "planned_epochs"]
+    long = pd.DataFrame(long_rows, columns=[*keys, "backend", *BACKEND_MEASURES])
     backends = sorted(long["backend"].unique(), key=_rank)
     rows = []
-    for (task, algo, horizon), sub in long.groupby(["task", "algo", "horizon"], sort=False):
+    for (task, algo, horizon, num_envs, _planned), sub in long.groupby(keys, sort=False, dropna=False):
         if sub["backend"].nunique() < 2:
             continue
-        row = {"task": task, "algo": algo, "horizon": horizon}
+        row = {"task": task, "algo": algo, "horizon": horizon, "num_envs": num_envs}
         for backend in backends:
             match = sub[sub["backend"] == backend]
             for measure in BACKEND_MEASURES:
                 row[f"{backend}_{measure}"] = match[measure].iloc[0] if len(match) else None
         rows.append(row)
-    columns = ["task", "algo", "horizon"] + [f"{b}_{m}" for b in backends for m in BACKEND_MEASURES]
+    columns = ["task", "algo", "horizon", "num_envs"] + [f"{b}_{m}" for b in backends for m in BACKEND_MEASURES]
     return pd.DataFrame(rows, columns=columns)
 
 
@@ -943,15 +971,15 @@ def rests_on_runs(runs: list[RunRecord], what: str = "training runs") -> str:
         return f"Rests on no {what}."
     seeds_per_group = Counter(r.group for r in runs).values()
     return (
-        f"Rests on {len(runs)} {what} in {len(seeds_per_group)} (task, backend, algo, horizon) groups with "
-        f"{_range_text(seeds_per_group)} training seeds each, {_range_text(r.epochs for r in runs)} epochs and "
+        f"Rests on {len(runs)} {what} in {len(seeds_per_group)} (task, backend, algo, h, N, planned epochs) groups "
+        f"with {_range_text(seeds_per_group)} training seeds each, {_range_text(r.epochs for r in runs)} epochs and "
         f"{_range_text(r.env_steps for r in runs)} env steps per run."
     )
 
 
 # -- the tables as documents ----------------------------------------------------------------------
 def _key_columns(*names: str) -> ColumnSpec:
-    labels = {"horizon": "h", "env_steps": "env steps per run"}
+    labels = {"horizon": "h", "env_steps": "env steps per run", "num_envs": "N"}
     return [(labels.get(n, n), n) for n in names]
 
 
@@ -977,7 +1005,7 @@ def returns_document(runs: list[RunRecord]) -> Table:
         [
             Section(
                 returns,
-                _key_columns("task", "backend", "algo", "horizon", "seeds", "epochs", "env_steps")
+                _key_columns("task", "backend", "algo", "horizon", "num_envs", "seeds", "epochs", "env_steps")
                 + [
                     ("IQM final", "iqm_final"),
                     ("95% CI", lambda r: _ci(r["iqm_ci_low"], r["iqm_ci_high"])),
@@ -997,7 +1025,7 @@ def returns_document(runs: list[RunRecord]) -> Table:
             f"{BOOTSTRAP_RESAMPLES} resamples, `np.random.default_rng({BOOTSTRAP_SEED})` "
             "(`scipy.stats.bootstrap`; one task and backend per row is one stratum, so rliable's stratified "
             "bootstrap is this plain one). n/a under 2 seeds. mean ± std: sample std (n - 1).",
-            "IQM improvement: IQM(algo) - IQM(base) at the same task, backend and horizon (base of shac-tdfixed "
+            "IQM improvement: IQM(algo) - IQM(base) at the same task, backend, h, N and epochs (base of shac-tdfixed "
             "and shac-tdadpt is shac, of sapo-tdfixed and sapo-tdadpt sapo), 95% CI from a two-sample unpaired "
             "percentile bootstrap (each algorithm's seeds resampled on their own), n/a under 2 seeds on a side.",
             "Runs without eval.json (unfinished) are left out of this table.",
@@ -1017,13 +1045,13 @@ def grad_variance_document(runs: list[RunRecord]) -> Table:
         [
             Section(
                 per_h,
-                _key_columns("task", "backend", "algo", "horizon", "seeds")
+                _key_columns("task", "backend", "algo", "num_envs", "epochs", "horizon", "seeds")
                 + [("epochs pooled", "values"), ("median", "median"), ("Q1", "q1"), ("Q3", "q3")],
                 empty="no run has metrics",
             ),
             Section(
                 grad_variance_growth_table(per_h),
-                _key_columns("task", "backend", "algo")
+                _key_columns("task", "backend", "algo", "num_envs", "epochs")
                 + [
                     ("h min", "h_min"),
                     ("h max", "h_max"),
@@ -1038,7 +1066,9 @@ def grad_variance_document(runs: list[RunRecord]) -> Table:
         ],
         [
             "actor_grad_var of every epoch of every seed pooled (NaN epochs dropped); median and quartiles "
-            "(numpy's linear interpolation). Growth factor: median at the longest h / median at the shortest."
+            "(numpy's linear interpolation). A row pools only runs of one setting (N envs, planned epochs): runs "
+            "of another block at the same h are another row. Growth factor: median at the longest h / median at "
+            "the shortest, within one setting."
         ],
         _run_commits(trained),
     )
@@ -1058,7 +1088,7 @@ def wall_time_document(runs: list[RunRecord]) -> Table:
         [
             Section(
                 wall,
-                _key_columns("run", "task", "backend", "algo", "horizon", "seed", "epochs")
+                _key_columns("run", "task", "backend", "algo", "horizon", "num_envs", "seed", "epochs")
                 + [("wall min", "wall_min"), ("s / epoch", "s_per_epoch")]
                 + split_columns,
                 empty="no run has metrics",
@@ -1135,7 +1165,7 @@ def backends_document(runs: list[RunRecord]) -> Table:
         [
             Section(
                 wide,
-                _key_columns("task", "algo", "horizon") + by_backend,
+                _key_columns("task", "algo", "horizon", "num_envs") + by_backend,
                 empty="no (task, algo, horizon) has runs on two or more backends",
             )
         ],
@@ -1301,15 +1331,20 @@ def _algo_palette(algos: Iterable[str]) -> dict[str, tuple]:
     return {algo: fixed.get(algo) or next(spare) for algo in sorted(set(algos), key=_rank)}
 
 
-def curve_horizons(runs: list[RunRecord]) -> dict[tuple[str, str], int]:
-    """Per (task, backend) the horizon with the most runs (the shortest on a tie): the one curves show."""
-    counts = Counter((r.task, r.backend, r.horizon) for r in runs if r.epochs)
-    chosen: dict[tuple[str, str], tuple[int, int]] = {}
-    for (task, backend, horizon), n in counts.items():
+def _curve_setting(run: RunRecord) -> tuple:
+    return (run.horizon, run.num_envs or 0, run.planned_epochs or 0)
+
+
+def curve_settings(runs: list[RunRecord]) -> dict[tuple[str, str], tuple]:
+    """Per (task, backend) the (horizon, num_envs, planned epochs) with the most runs (on a tie the shortest h,
+    then the fewest envs and epochs): the one curves show, so a band never mixes runs of different settings."""
+    counts = Counter((r.task, r.backend, _curve_setting(r)) for r in runs if r.epochs)
+    chosen: dict[tuple[str, str], tuple[tuple, int]] = {}
+    for (task, backend, setting), n in counts.items():
         best = chosen.get((task, backend))
-        if best is None or (n, -horizon) > (best[1], -best[0]):
-            chosen[(task, backend)] = (horizon, n)
-    return {key: horizon for key, (horizon, _) in sorted(chosen.items())}
+        if best is None or (n, [-x for x in setting]) > (best[1], [-x for x in best[0]]):
+            chosen[(task, backend)] = (setting, n)
+    return {key: setting for key, (setting, _) in sorted(chosen.items())}
 
 
 CURVE_MEASURES = {
@@ -1331,10 +1366,10 @@ def _training_return(metrics: pd.DataFrame) -> tuple[pd.Series, str]:
 
 def learning_curve_frame(runs: list[RunRecord], x: str) -> pd.DataFrame:
     """Training return of every run on a common x grid per (task, backend, horizon): ``x`` is ``env_steps``
-    or ``wall_min``. Only the runs at :func:`curve_horizons`; no extrapolation (NaN outside a run's range),
+    or ``wall_min``. Only the runs of :func:`curve_settings`; no extrapolation (NaN outside a run's range),
     so the end of a band rests on the runs that got there."""
-    horizons = curve_horizons(runs)
-    chosen = [r for r in runs if r.epochs and horizons.get((r.task, r.backend)) == r.horizon]
+    settings = curve_settings(runs)
+    chosen = [r for r in runs if r.epochs and settings.get((r.task, r.backend)) == _curve_setting(r)]
     rows = []
     for (task, backend, horizon), members in _group_runs(chosen, lambda r: (r.task, r.backend, r.horizon)).items():
         series = []
@@ -1356,7 +1391,7 @@ def learning_curve_frame(runs: list[RunRecord], x: str) -> pd.DataFrame:
             for gx, gy in zip(grid[inside], np.interp(grid[inside], xs, ys), strict=True):
                 rows.append(
                     {
-                        "panel": f"{task} / {backend}, h={horizon}"
+                        "panel": f"{task} / {backend}, h={horizon}, N={members[0].num_envs}"
                         + ("" if measure == "per_step" else " (episode returns)"),
                         "measure": measure,
                         "task": task,
@@ -1417,18 +1452,26 @@ def plot_learning_curves(runs: list[RunRecord], x: str, path: Path) -> Path:
 
 
 def plot_grad_variance(per_h: pd.DataFrame, path: Path) -> Path:
-    """Median actor-gradient variance against h, IQR error bars, log y, one line per algorithm."""
+    """Median actor-gradient variance against h, IQR error bars, log y, one line per algorithm, one panel per
+    (task, backend, N, planned epochs). Where some setting was swept over h, only swept settings are drawn (the
+    others are one point each and stay in the table)."""
     plt, sns = _pyplot()
     data = per_h[np.isfinite(per_h["median"].astype(float)) & (per_h["median"].astype(float) > 0)]
     if data.empty:
         raise NoPlotData("no finite actor_grad_var")
-    panels = list(dict.fromkeys(zip(data["task"], data["backend"], strict=True)))
+    setting = ["task", "backend", "num_envs", "epochs"]
+    swept = data.groupby(setting, dropna=False)["horizon"].transform("nunique") > 1
+    if swept.any():
+        data = data[swept]
+    panels = list(dict.fromkeys(zip(*(data[c] for c in setting), strict=True)))
     ncols = min(3, len(panels))
     nrows = math.ceil(len(panels) / ncols)
     fig, axes = plt.subplots(nrows, ncols, figsize=(5.2 * ncols, 3.9 * nrows), squeeze=False)
     palette = _algo_palette(data["algo"])
-    for ax, (task, backend) in zip(axes.flat, panels, strict=False):
-        sub = data[(data["task"] == task) & (data["backend"] == backend)]
+    for ax, (task, backend, num_envs, planned) in zip(axes.flat, panels, strict=False):
+        same = (data["task"] == task) & (data["backend"] == backend)
+        same &= _same(data["num_envs"], num_envs) & _same(data["epochs"], planned)
+        sub = data[same]
         algos = [a for a in palette if a in set(sub["algo"])]
         for i, algo in enumerate(algos):
             line = sub[sub["algo"] == algo].sort_values("horizon")
@@ -1452,7 +1495,7 @@ def plot_grad_variance(per_h: pd.DataFrame, path: Path) -> Path:
         ax.set_xticks(horizons, [str(h) for h in horizons])
         ax.minorticks_off()
         ax.set_yscale("log")
-        ax.set_title(f"{task} / {backend}")
+        ax.set_title(f"{task} / {backend}, N={_fmt(num_envs)}, {_fmt(planned)} epochs")
         ax.set_xlabel("horizon h (steps)")
         ax.set_ylabel("actor-gradient variance")
         ax.legend(fontsize="small")
@@ -1463,11 +1506,16 @@ def plot_grad_variance(per_h: pd.DataFrame, path: Path) -> Path:
     return _save_figure(fig, path)
 
 
+def _same(column: pd.Series, value) -> pd.Series:
+    """Element-wise equality where a missing value equals a missing value (settings of old runs may lack one)."""
+    return column.isna() if _is_missing(value) else column == value
+
+
 def lambda_alpha_frame(runs: list[RunRecord]) -> pd.DataFrame:
     """lambda (every algorithm) and alpha (SAPO's temperature; SHAC has none) per epoch, long format, thinned to
     about CURVE_POINTS epochs per task (every k-th epoch, the same ones for every seed so they average)."""
-    horizons = curve_horizons(runs)
-    chosen = [r for r in runs if r.epochs and horizons.get((r.task, r.backend)) == r.horizon]
+    settings = curve_settings(runs)
+    chosen = [r for r in runs if r.epochs and settings.get((r.task, r.backend)) == _curve_setting(r)]
     rows = []
     for (task,), members in _group_runs(chosen, lambda r: (r.task,)).items():
         stride = max(1, math.ceil(max(r.epochs for r in members) / CURVE_POINTS))
@@ -1479,7 +1527,7 @@ def lambda_alpha_frame(runs: list[RunRecord]) -> pd.DataFrame:
                 values = _column(run.metrics, name)
                 for epoch, value in zip(epochs[keep], values[keep], strict=True):
                     if np.isfinite(value):
-                        panel = f"{task} / {run.backend}, h={run.horizon}"
+                        panel = f"{task} / {run.backend}, h={run.horizon}, N={run.num_envs}"
                         rows.append(
                             {"panel": panel, "task": task, "backend": run.backend, "algo": run.algo, "seed": run.seed}
                             | {"quantity": label, "epoch": int(epoch), "value": float(value)}

@@ -17,8 +17,10 @@ from scipy import stats
 from harness.bench_report import (
     base_algo,
     collect_runs,
+    curve_settings,
     header_lines,
     iqm_difference_with_ci,
+    learning_curve_frame,
     load_run,
     returns_table,
     write_bench_report,
@@ -63,24 +65,26 @@ def make_run(
     final: float | None,
     grad_var: list[float],
     split_update: bool = True,
+    num_envs: int = 4,
+    epochs: int = EPOCHS,
 ) -> Path:
     """A run directory as harness/train.py leaves it: config.json, metrics.jsonl and (unless final is None)
     eval.json. ``grad_var``: actor_grad_var of each epoch (NaN allowed, as the log has it)."""
-    run = root / f"{task}_{backend}_{algo}_h{horizon}_s{seed}"
+    setting = "" if (num_envs, epochs) == (4, EPOCHS) else f"_n{num_envs}_e{epochs}"
+    run = root / f"{task}_{backend}_{algo}_h{horizon}_s{seed}{setting}"
     run.mkdir(parents=True)
-    num_envs = 4
     config = {
         "task": task,
         "backend": backend,
         "seed": seed,
         "device": "cpu",
-        "epochs": EPOCHS,
+        "epochs": epochs,
         "algo": {"algo": algo, "num_envs": num_envs, "horizon": horizon, "gamma": 0.99, "lam": 0.95},
         "provenance": {"git_commit": "7ra1ned"},
     }
     (run / "config.json").write_text(json.dumps(config))
     rows = []
-    for epoch in range(EPOCHS):
+    for epoch in range(epochs):
         row = {
             "epoch": epoch,
             "env_steps": (epoch + 1) * num_envs * horizon,
@@ -113,6 +117,10 @@ SHAC_FINALS = [1.0, 2.0, 3.0, 4.0, 100.0]
 TDADPT_FINALS = [10.0, 11.0, 12.0, 13.0, 14.0]
 H16_GRAD_VAR = [1.0, 2.0, 3.0, math.nan]
 H32_GRAD_VAR = [4.0, 8.0, 12.0, math.nan]
+# another block's runs at h=32 (8 envs, 6 epochs, as the h-sweep beside a headline grid): never pooled with them
+OTHER_SETTING = {"num_envs": 8, "epochs": 6}
+OTHER_FINALS = [500.0, 600.0]
+OTHER_GRAD_VAR = [1000.0] * 6
 
 
 @pytest.fixture(scope="module")
@@ -129,6 +137,8 @@ def suite(tmp_path_factory):
     for seed, final in enumerate([20.0, 30.0, None]):  # seed 2 never finished: no eval.json
         make_run(runs_root, "ant", "newton", "shac", seed, 32, final, H32_GRAD_VAR)
     make_run(runs_root, "ant", "mujoco_warp", "shac", 0, 16, 7.0, [1.0] * EPOCHS, split_update=False)
+    for seed, final in enumerate(OTHER_FINALS):
+        make_run(runs_root, "ant", "newton", "shac", seed, 32, final, OTHER_GRAD_VAR, **OTHER_SETTING)
 
     sim2sim = runs_root / "ant_newton_shac_h16_s0"
     payload = _eval_payload(-5.0, backend="mujoco_warp", trained_on="newton")
@@ -236,13 +246,35 @@ def test_returns_iqm_ci_and_improvement(suite):
 
 def test_unfinished_run_is_left_out_of_returns_but_not_of_curves(suite):
     returns = pd.read_csv(suite["out"] / "returns.csv")
-    h32 = _row(returns, algo="shac", backend="newton", horizon=32)
+    h32 = _row(returns, algo="shac", backend="newton", horizon=32, num_envs=4)
     assert h32["seeds"] == 2  # seed 2 has no eval.json
     assert h32["iqm_final"] == pytest.approx(25.0)  # trim_mean of 2 values cuts none
     grad = pd.read_csv(suite["out"] / "grad_variance_vs_h.csv")
-    assert _row(grad, algo="shac", backend="newton", horizon=32)["seeds"] == 3
+    assert _row(grad, algo="shac", backend="newton", horizon=32, num_envs=4)["seeds"] == 3
     wall = pd.read_csv(suite["out"] / "wall_time.csv")
-    assert len(wall) == 5 + 5 + 3 + 1
+    assert len(wall) == 5 + 5 + 3 + 1 + 2
+
+
+def test_runs_of_another_setting_are_another_row(suite):
+    """Same task, backend, algorithm and h but other envs and epochs (another block of the spec): its own row
+    in the returns table, never extra seeds of the first."""
+    returns = pd.read_csv(suite["out"] / "returns.csv")
+    other = _row(returns, algo="shac", backend="newton", horizon=32, num_envs=8)
+    assert (other["seeds"], other["epochs"], other["env_steps"]) == (2, 6, 6 * 8 * 32)
+    assert other["iqm_final"] == pytest.approx(np.mean(OTHER_FINALS))
+    assert len(returns[(returns["algo"] == "shac") & (returns["horizon"] == 32)]) == 2
+    text = (suite["out"] / "returns.md").read_text()
+    assert "| ant | newton | shac | 32 | 8 | 2 | 6 |" in text
+
+
+def test_curves_show_one_setting_per_task_and_backend(suite):
+    records = [load_run(path, io.StringIO()) for path in collect_runs(suite["root"])]
+    # newton/ant: h=16 at 4 envs has 10 runs, h=32 at 4 envs 3, h=32 at 8 envs 2
+    assert curve_settings(records)[("ant", "newton")] == (16, 4, EPOCHS)
+    frame = learning_curve_frame(records, "env_steps")
+    newton = frame[frame["backend"] == "newton"]
+    assert {panel.split(" (")[0] for panel in newton["panel"]} == {"ant / newton, h=16, N=4"}
+    assert newton["env_steps"].max() <= EPOCHS * 4 * 16
 
 
 def test_single_seed_has_a_value_and_no_ci(suite):
@@ -250,7 +282,7 @@ def test_single_seed_has_a_value_and_no_ci(suite):
     warp = _row(returns, backend="mujoco_warp", algo="shac")
     assert warp["iqm_final"] == pytest.approx(7.0)
     assert pd.isna(warp["iqm_ci_low"]) and pd.isna(warp["iqm_ci_high"])
-    assert "| ant | mujoco_warp | shac | 16 | 1 |" in (suite["out"] / "returns.md").read_text()
+    assert "| ant | mujoco_warp | shac | 16 | 4 | 1 |" in (suite["out"] / "returns.md").read_text()
 
 
 def test_tables_are_reproducible(suite):
@@ -266,12 +298,16 @@ def test_grad_variance_quartiles_and_growth(suite):
     # 5 seeds x [1, 2, 3] pooled (NaN dropped): 15 values, sorted 1 x5, 2 x5, 3 x5
     assert h16["values"] == 15
     assert (h16["q1"], h16["median"], h16["q3"]) == (1.0, 2.0, 3.0)
-    h32 = _row(grad, task="ant", backend="newton", algo="shac", horizon=32)
+    h32 = _row(grad, task="ant", backend="newton", algo="shac", horizon=32, num_envs=4)
     assert (h32["q1"], h32["median"], h32["q3"]) == (4.0, 8.0, 12.0)
+    assert (h32["seeds"], h32["values"], h32["epochs"]) == (3, 9, EPOCHS)
+    other = _row(grad, task="ant", backend="newton", algo="shac", horizon=32, num_envs=8)
+    assert (other["seeds"], other["values"], other["median"], other["epochs"]) == (2, 12, 1000.0, 6)
     growth = pd.read_csv(suite["out"] / "grad_variance_vs_h_growth.csv")
     shac = _row(growth, task="ant", backend="newton", algo="shac")
     assert (shac["h_min"], shac["h_max"], shac["growth_factor"]) == (16, 32, pytest.approx(8.0 / 2.0))
-    assert len(growth) == 1  # shac-tdadpt has one horizon only
+    assert shac["num_envs"] == 4
+    assert len(growth) == 1  # shac-tdadpt and the 8-env setting have one horizon each
 
 
 def test_wall_time_split(suite):
