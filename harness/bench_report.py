@@ -103,9 +103,10 @@ class RunRecord:
 
     @property
     def group(self) -> tuple:
-        """What a table row pools seeds over: the same task, backend, algorithm, horizon *and* setting (envs,
-        planned epochs), so a 30-epoch h-sweep run never counts as a seed of a 100-epoch headline run."""
-        return (self.task, self.backend, self.algo, self.horizon, self.num_envs, self.planned_epochs)
+        """What a table row pools seeds over, in table order: the same task, backend, setting (envs, planned
+        epochs), horizon and algorithm, so a 30-epoch h-sweep run never counts as a seed of a 100-epoch
+        headline run."""
+        return (self.task, self.backend, self.num_envs, self.planned_epochs, self.horizon, self.algo)
 
     @property
     def epochs(self) -> int:
@@ -343,8 +344,8 @@ def _group_runs(runs: Iterable[RunRecord], key: Callable[[RunRecord], tuple]) ->
 
 
 def _by_group(runs: Iterable[RunRecord]) -> dict[tuple, list[RunRecord]]:
-    """Runs by (task, backend, num_envs, planned epochs, horizon, algo): :attr:`RunRecord.group`, ordered for tables."""
-    return _group_runs(runs, lambda r: (r.task, r.backend, r.num_envs, r.planned_epochs, r.horizon, r.algo))
+    """Runs by :attr:`RunRecord.group`, ordered for tables."""
+    return _group_runs(runs, lambda r: r.group)
 
 
 def _value_or_range(values: Iterable) -> int | str | None:
@@ -476,8 +477,10 @@ def grad_variance_growth_table(per_horizon: pd.DataFrame) -> pd.DataFrame:
                 "growth_factor": float(high["median"] / low["median"]) if low["median"] else math.nan,
             }
         )
-    columns = ["task", "backend", "algo", "num_envs", "epochs", "h_min", "h_max", "median_h_min", "median_h_max"]
-    columns.append("growth_factor")
+    columns = [
+        *("task", "backend", "algo", "num_envs", "epochs"),
+        *("h_min", "h_max", "median_h_min", "median_h_max", "growth_factor"),
+    ]
     return pd.DataFrame(rows, columns=columns)
 
 
@@ -526,8 +529,10 @@ def wall_time_table(runs: list[RunRecord]) -> pd.DataFrame:
                 {f"{stem}_frac": seconds[stem] / run.wall_s if run.wall_s else math.nan for stem, _, _ in TIME_PARTS}
             )
             rows.append(row)
-    columns = ["run", "task", "backend", "algo", "horizon", "num_envs", "seed", "epochs", "env_steps", "wall_min"]
-    columns.append("s_per_epoch")
+    columns = [
+        *("run", "task", "backend", "algo", "horizon", "num_envs", "seed"),
+        *("epochs", "env_steps", "wall_min", "s_per_epoch"),
+    ]
     columns += [f"{stem}_{unit}" for unit in ("min", "frac") for stem, _, _ in TIME_PARTS]
     return pd.DataFrame(rows, columns=columns)
 
