@@ -29,6 +29,10 @@ How gradients stay exact:
   that substep's joint coordinates and writing that substep's own ``joint_f``.
 * Without grad (``torch.no_grad()`` or inputs that need none) the step runs without a tape on
   two ping-pong buffers.
+* The model is finalized without parameter gradients (the contract has no parameter gradients):
+  states, controls and contacts carry gradients, masses and gains do not, so the adjoint kernels
+  skip their parameter accumulators. Gradients with respect to states and controls are bit-identical
+  either way (tests/test_newton_adapter.py).
 """
 
 from __future__ import annotations
@@ -131,7 +135,13 @@ class NewtonSim(BatchedSim):
             builder = self._articulation_builder(shape_cfg)
         if phys.ground_plane:
             builder.add_ground_plane(cfg=shape_cfg)
-        model = builder.finalize(device=self.wp_device, requires_grad=True)
+        # The contract differentiates states and controls, never the model's parameters (masses,
+        # inertias, gains, contact stiffnesses): a model finalized without gradients makes every adjoint
+        # kernel skip its atomic adds into parameter gradients and the tapes skip zeroing them, ~10% of
+        # the Ant's forward+backward (README "Newton without parameter gradients"). States, controls,
+        # contacts and Featherstone's per-frame matrices ask for gradients explicitly below; the solver's
+        # remaining model-sized buffers (body inertias and COM frames) depend on parameters only.
+        model = builder.finalize(device=self.wp_device, requires_grad=False)
         if self.soft:
             self._apply_soft_physics(model)
         else:
