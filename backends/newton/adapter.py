@@ -90,8 +90,10 @@ class NewtonSim(BatchedSim):
     (``"semi_implicit"``, the default, or ``"featherstone"``); ``contact_gap`` (default 0.05 m)
     contact-candidate distance; for the semi-implicit solver ``angular_damping`` (default 0.05),
     ``joint_attach_ke`` (1e4) and ``joint_attach_kd`` (1e2): the solver's own defaults, exposed for
-    experiments. Control kinds: joint torques, and joint position targets through the PD law of the
-    task's physics spec, evaluated by :func:`_pd_torque` at every substep inside the tape.
+    experiments; ``parameter_gradients`` (0, the default, or 1): build the model with gradient buffers
+    for its parameters, which no output of the contract uses (for A/B timing against the default).
+    Control kinds: joint torques, and joint position targets through the PD law of the task's physics
+    spec, evaluated by :func:`_pd_torque` at every substep inside the tape.
 
     Engine state per env: ``[body_q, body_qd]`` of every body (maximal coordinates) for the
     semi-implicit solver; ``[joint_q, joint_qd]`` (generalized coordinates, the neutral layout
@@ -107,6 +109,7 @@ class NewtonSim(BatchedSim):
         "angular_damping",
         "joint_attach_ke",
         "joint_attach_kd",
+        "parameter_gradients",
     )
     SOLVERS = ("semi_implicit", "featherstone")
 
@@ -137,11 +140,12 @@ class NewtonSim(BatchedSim):
             builder.add_ground_plane(cfg=shape_cfg)
         # The contract differentiates states and controls, never the model's parameters (masses,
         # inertias, gains, contact stiffnesses): a model finalized without gradients makes every adjoint
-        # kernel skip its atomic adds into parameter gradients and the tapes skip zeroing them, ~10% of
-        # the Ant's forward+backward (README "Newton without parameter gradients"). States, controls,
-        # contacts and Featherstone's per-frame matrices ask for gradients explicitly below; the solver's
-        # remaining model-sized buffers (body inertias and COM frames) depend on parameters only.
-        model = builder.finalize(device=self.wp_device, requires_grad=False)
+        # kernel skip its atomic adds into parameter gradients and the tapes skip zeroing them (README
+        # "Newton without parameter gradients"). States, controls, contacts and Featherstone's per-frame
+        # matrices ask for gradients explicitly below; the solver's remaining model-sized buffers (body
+        # inertias and COM frames) depend on parameters only. Option parameter_gradients=1 restores
+        # them (as Rewarped builds its models), for A/B measurements; nothing reads them.
+        model = builder.finalize(device=self.wp_device, requires_grad=self._read_parameter_gradients())
         if self.soft:
             self._apply_soft_physics(model)
         else:
@@ -269,6 +273,12 @@ class NewtonSim(BatchedSim):
         # which clips to the torque limits as the task's law says; Newton's drive would not)
         model.joint_target_ke.assign(per_dof(0.0))
         model.joint_target_kd.assign(per_dof(0.0))
+
+    def _read_parameter_gradients(self) -> bool:
+        value = self.options.get("parameter_gradients", 0)
+        if value in (0, 1, "true", "false"):  # the CLI reads 0 and 1 as ints; TOML may give booleans
+            return value in (1, "true")
+        raise BackendError(f"newton option parameter_gradients must be 0 or 1, got {value!r}")
 
     @property
     def layout(self) -> StateLayout:
