@@ -32,7 +32,7 @@ How gradients stay exact:
 * The model is finalized without parameter gradients (the contract has no parameter gradients):
   states, controls and contacts carry gradients, masses and gains do not, so the adjoint kernels
   skip their parameter accumulators. Gradients with respect to states and controls are bit-identical
-  either way (tests/test_newton_adapter.py).
+  either way (tests/test_newton_ant.py).
 """
 
 from __future__ import annotations
