@@ -276,7 +276,7 @@ class NewtonSim(BatchedSim):
 
     def _read_parameter_gradients(self) -> bool:
         value = self.options.get("parameter_gradients", 0)
-        if value in (0, 1, "true", "false"):  # the CLI reads 0 and 1 as ints; TOML may give booleans
+        if value in (0, 1, "true", "false"):  # CLI: 0/1 arrive as ints, true/false as strings; TOML booleans equal 0/1
             return value in (1, "true")
         raise BackendError(f"newton option parameter_gradients must be 0 or 1, got {value!r}")
 
