@@ -118,7 +118,7 @@ import warp as wp
 from backends._warp import warp_device
 from backends.contract import BackendError, BatchedSim
 from backends.mujoco_warp.soft import SoftEnvModels
-from backends.mujoco_warp.stepping import run_substeps
+from backends.mujoco_warp.stepping import SubstepReplay, run_substeps
 from simcore import (
     ControlKind,
     SimState,
@@ -221,11 +221,17 @@ class MujocoWarpSim(BatchedSim):
         "fd_chunk_worlds",
         "nconmax",
         "njmax",
+        "graph_capture",
     )
 
     # -- construction ---------------------------------------------------------------------
     def _build(self) -> None:
         task = self.task
+        self.wp_device = warp_device(self.device)
+        capture = self.options.get("graph_capture", int(self.device.type == "cpu"))
+        if capture not in (0, 1, "true", "false"):  # CLI: 0/1 arrive as ints, true/false as strings
+            raise BackendError(f"mujoco_warp option graph_capture must be 0 or 1, got {capture!r}")
+        self.stepper = SubstepReplay(capture in (1, "true"), self.wp_device)
         self.soft = task.control_kind == ControlKind.TET_ACTIVATION
         if self.soft:
             return self._build_soft()
@@ -245,7 +251,6 @@ class MujocoWarpSim(BatchedSim):
             raise ValueError("fd_eps_state and fd_eps_control must be positive")
         if self.fd_chunk_envs < 1 or self.nconmax < 1 or self.njmax < 1:
             raise ValueError("fd_chunk_envs, nconmax and njmax must be >= 1")
-        self.wp_device = warp_device(self.device)
 
         self.mjm = build_spec(task).compile()
         layout = task.layout
@@ -285,8 +290,7 @@ class MujocoWarpSim(BatchedSim):
             raise ValueError("fd_eps_state and fd_eps_control must be positive")
         if self.fd_chunk_worlds < 1 or self.nconmax < 1 or self.njmax < 1:
             raise ValueError("fd_chunk_worlds, nconmax and njmax must be >= 1")
-        self.wp_device = warp_device(self.device)
-        self.soft_models = SoftEnvModels(task, self.num_envs, self.wp_device, self.device, self.nconmax, self.njmax)
+        self.soft_models = SoftEnvModels(task, self.num_envs, self.stepper, self.device, self.nconmax, self.njmax)
         if self.soft_models.mjm[0].nv != 3 * layout.num_particles:
             raise BackendError(f"flex model has nv={self.soft_models.mjm[0].nv}, expected {3 * layout.num_particles}")
         self._com_offset = None
@@ -358,7 +362,7 @@ class MujocoWarpSim(BatchedSim):
             view["qfrc_applied"][:, root:] = phys.pd_torque(torque, hinges, view["qvel"][:, root:])
 
         hook = pd_law if self.position_control else None
-        return run_substeps(self.model, data, view, phys.substeps, self.wp_device, hook, (self.nconmax, self.njmax))
+        return run_substeps(self.model, data, view, phys.substeps, self.stepper, hook, (self.nconmax, self.njmax))
 
     def _split(self, engine: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return engine[:, : self.layout.nq], engine[:, self.layout.nq :]
@@ -427,7 +431,8 @@ class MujocoWarpSim(BatchedSim):
 
     def bare_engine_rollout(self, horizon: int, grad: bool = True) -> float | None:
         """Seconds for ``horizon`` control steps of MuJoCo-Warp alone: ``substeps`` ``mujoco_warp.step``
-        calls each, no torch in between, on the worlds the adapter steps: N for a forward step, N x
+        calls each (replayed from captured graphs when the adapter captures, as its own steps are), no
+        torch in between, on the worlds the adapter steps: N for a forward step, N x
         ``worlds_per_env_with_grad`` for a step with gradients (every env's nominal and perturbed worlds,
         the batch :meth:`fd_jacobians` steps). The worlds start from the current states (each env's state
         in all its worlds) with a fixed applied force: the joint torques of random actions, or for
@@ -473,11 +478,16 @@ class MujocoWarpSim(BatchedSim):
             batches = [(self.model, data)]
         substeps = self.task.physics.substeps * horizon
         with wp.ScopedDevice(self.wp_device):
+            # untimed: each Data's first steps load kernels and (graph_capture) capture its graph, as
+            # they did in the adapter's own warm-up; the timed steps start from what these two left
+            for model, data in batches:
+                for _ in range(2):
+                    self.stepper.step(model, data)
             wp.synchronize_device(self.wp_device)
             start = time.perf_counter()
             for model, data in batches:
                 for _ in range(substeps):
-                    mjw.step(model, data)
+                    self.stepper.step(model, data)
             wp.synchronize_device(self.wp_device)
             return time.perf_counter() - start
 

@@ -32,7 +32,7 @@ import mujoco_warp as mjw
 import torch
 import warp as wp
 
-from backends.mujoco_warp.stepping import run_substeps
+from backends.mujoco_warp.stepping import SubstepReplay, run_substeps
 from simcore import SoftBodySpec, activation_nodal_forces
 
 
@@ -86,8 +86,9 @@ def build_soft_spec(task, scale: float) -> mujoco.MjSpec:
 class SoftEnvModels:
     """Every env's compiled model, its rest positions, and Warp ``Data`` batches keyed by (env, worlds)."""
 
-    def __init__(self, task, num_envs: int, wp_device: str, torch_device: torch.device, nconmax: int, njmax: int):
-        self.task, self.wp_device, self.device = task, wp_device, torch_device
+    def __init__(self, task, num_envs: int, stepper: SubstepReplay, torch_device: torch.device, nconmax: int, njmax: int):
+        self.task, self.stepper, self.device = task, stepper, torch_device
+        wp_device = self.wp_device = stepper.wp_device
         self.nconmax, self.njmax = nconmax, njmax
         body = task.soft_body
         self.scales = body.rest_scales(num_envs)
@@ -127,4 +128,4 @@ class SoftEnvModels:
 
         substeps = self.task.physics.substeps
         buffers = (self.nconmax, self.njmax)
-        return run_substeps(self.models[env], data, view, substeps, self.wp_device, activation_forces, buffers)
+        return run_substeps(self.models[env], data, view, substeps, self.stepper, activation_forces, buffers)

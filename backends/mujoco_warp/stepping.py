@@ -1,4 +1,5 @@
-"""The control-step loop every MuJoCo-Warp model here shares: substeps with a hook before each."""
+"""The control-step loop every MuJoCo-Warp model here shares: substeps with a hook before each, each
+substep one ``mujoco_warp.step`` run directly or replayed from a captured graph (:class:`SubstepReplay`)."""
 
 from __future__ import annotations
 
@@ -9,12 +10,48 @@ import torch
 import warp as wp
 
 
+class SubstepReplay:
+    """``mujoco_warp.step(model, data)``, captured into a Warp graph per ``Data`` and replayed.
+
+    One ``mujoco_warp.step`` is ~100 kernel launches; on Warp's CPU device each costs tens of
+    microseconds of Python (argument packing) before its kernel runs, which is what makes a step of
+    64 Ant worlds launch-bound. ``wp.capture_launch`` replays the same launches on the same buffers
+    from C++, bit-identically (tests/test_mujoco_warp_adapter.py). A ``Data`` keeps its buffers for
+    its lifetime and every input (state, applied forces) is written into them in place, so its graph
+    stays valid. The first step of a ``Data`` runs directly (it loads MuJoCo-Warp's kernels), the
+    second is captured, the rest replay. ``enabled=False`` (option ``graph_capture=0``) always steps
+    directly.
+    """
+
+    def __init__(self, enabled: bool, wp_device: str):
+        self.enabled, self.wp_device = enabled, wp_device
+        # id(data) -> [data, model, steps so far, graph]; holding data keeps its id from being reused
+        self._entries: dict[int, list] = {}
+
+    def step(self, model: mjw.Model, data: mjw.Data) -> None:
+        if not self.enabled:
+            mjw.step(model, data)
+            return
+        entry = self._entries.get(id(data))
+        if entry is None or entry[0] is not data or entry[1] is not model:
+            entry = self._entries[id(data)] = [data, model, 0, None]
+        entry[2] += 1
+        if entry[3] is None and entry[2] > 1:
+            with wp.ScopedCapture(device=self.wp_device) as capture:  # records, runs nothing
+                mjw.step(model, data)
+            entry[3] = capture.graph
+        if entry[3] is None:
+            mjw.step(model, data)
+        else:
+            wp.capture_launch(entry[3])
+
+
 def run_substeps(
     model: mjw.Model,
     data: mjw.Data,
     view: dict[str, torch.Tensor],
     substeps: int,
-    wp_device: str,
+    stepper: SubstepReplay,
     before_substep: Callable[[], None] | None,
     buffers: tuple[int, int],
 ) -> torch.Tensor:
@@ -24,12 +61,13 @@ def run_substeps(
     njmax)) raises instead of returning a state MuJoCo-Warp computed with contacts dropped."""
     from backends.contract import BackendError
 
+    wp_device = stepper.wp_device
     with wp.ScopedDevice(wp_device):
         for _ in range(substeps):
             if before_substep is not None:
                 wp.synchronize_device(wp_device)  # the hook reads this substep's state through torch
                 before_substep()
-            mjw.step(model, data)
+            stepper.step(model, data)
         wp.synchronize_device(wp_device)
     if bool(view["overflow"].any()):
         nconmax, njmax = buffers
