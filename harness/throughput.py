@@ -55,6 +55,11 @@ class ThroughputResult:
         }
 
 
+# untimed windows before the timed ones: the first compiles kernels and allocates buffers, the second
+# captures graphs (the Newton and MuJoCo-Warp adapters capture a buffer's graph on its second use)
+WARMUP_WINDOWS = 2
+
+
 def _window(sim: BatchedSim, horizon: int, grad: bool, gen: torch.Generator) -> float:
     """Seconds for one window of ``horizon`` adapter steps, plus the backward pass if ``grad``.
 
@@ -85,14 +90,16 @@ def _window(sim: BatchedSim, horizon: int, grad: bool, gen: torch.Generator) -> 
 
 
 def forward_rate(sim: BatchedSim, horizon: int = 32, windows: int = 3, seed: int = 0) -> float:
-    """Best-of-``windows`` forward-only env-steps/s after a warm-up window."""
+    """Best-of-``windows`` forward-only env-steps/s after ``WARMUP_WINDOWS`` warm-up windows."""
     gen = torch.Generator().manual_seed(seed)
-    _window(sim, horizon, False, gen)
+    for _ in range(WARMUP_WINDOWS):
+        _window(sim, horizon, False, gen)
     return sim.num_envs * horizon / min(_window(sim, horizon, False, gen) for _ in range(windows))
 
 
 def measure(sim: BatchedSim, horizon: int = 32, windows: int = 5, seed: int = 0, bare: bool = True) -> ThroughputResult:
-    """Best-of-``windows`` rates after one warm-up window each (Warp compiles on first use).
+    """Best-of-``windows`` rates after ``WARMUP_WINDOWS`` warm-up windows each (Warp compiles kernels on
+    first use; adapters that capture graphs capture a buffer's graph on its second use).
 
     The bare-engine references are the adapter's optional ``bare_engine_rollout`` with and without
     gradients (None: none), timed in the same rounds; ``bare=False`` skips them.
@@ -101,7 +108,8 @@ def measure(sim: BatchedSim, horizon: int = 32, windows: int = 5, seed: int = 0,
     steps = sim.num_envs * horizon
     best = {False: float("inf"), True: float("inf"), "bare": float("inf"), "bare_forward": float("inf")}
     for grad in (False, True):
-        _window(sim, horizon, grad, gen)  # warm-up: kernel compilation, buffer allocation
+        for _ in range(WARMUP_WINDOWS):  # kernel compilation, buffer allocation, graph capture
+            _window(sim, horizon, grad, gen)
     # interleave the variants so a slow patch of machine time hits all of them alike
     for _ in range(windows):
         for grad in (False, True):

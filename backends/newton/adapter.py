@@ -191,6 +191,7 @@ class NewtonSim(BatchedSim):
             self.check_torque_limits()
             limits = phys.torque_limits or (float("inf"),) * task.layout.num_dofs
             self._pd_limits = wp.array(np.asarray(limits, dtype=np.float32), dtype=float, device=self.wp_device)
+        self._views: dict[int, tuple[wp.array, torch.Tensor]] = {}
         self._frames: list[_Frame] = []
         self._cursor = 0
         self._scratch = _Frame(self, 2)
@@ -323,28 +324,43 @@ class NewtonSim(BatchedSim):
             return state.particle_q, state.particle_qd
         return state.body_q, state.body_qd
 
-    def _to_warp(self, engine: torch.Tensor) -> tuple[wp.array, wp.array]:
-        a, b = self._split_engine(engine)
-        if self.featherstone:
-            return wp.from_torch(a), wp.from_torch(b)
-        if self.soft:
-            return wp.from_torch(a, dtype=wp.vec3), wp.from_torch(b, dtype=wp.vec3)
-        return wp.from_torch(a, dtype=wp.transform), wp.from_torch(b, dtype=wp.spatial_vector)
-
     def _join_engine(self, a: wp.array, b: wp.array) -> torch.Tensor:
-        n = self.num_envs
-        return torch.cat((wp.to_torch(a).reshape(n, -1), wp.to_torch(b).reshape(n, -1)), dim=1)
+        """A new (N, D) tensor holding two of the adapter's own (frame) arrays side by side."""
+        return torch.cat((self._view(a), self._view(b)), dim=1)
+
+    def _view(self, array: wp.array) -> torch.Tensor:
+        """An (N, -1) torch view of one of the adapter's own Warp arrays, made once and cached.
+
+        Only for arrays that live as long as the adapter (frames, their gradients, the control
+        buffers): frames never swap their buffers, so a view stays valid, and a cached view spares
+        ``wp.to_torch`` / ``wp.from_torch`` + ``wp.copy`` on every step (tens of microseconds each).
+        """
+        entry = self._views.get(id(array))
+        if entry is None or entry[0] is not array:  # holding the array keeps its id from being reused
+            entry = self._views[id(array)] = (array, wp.to_torch(array).reshape(self.num_envs, -1))
+        return entry[1]
+
+    def _engine_split(self) -> int:
+        """Columns of an engine row that belong to the first of the two state arrays."""
+        if self.featherstone:
+            return self.layout.nq
+        if self.soft:
+            return 3 * self.layout.num_particles
+        return self.bodies_per_env * _POSE
 
     def _load_state(self, state: newton.State, engine: torch.Tensor) -> None:
-        for dst, src in zip(self._state_arrays(state), self._to_warp(engine.detach().float()), strict=True):
-            wp.copy(dst, src)
+        a, b = self._state_arrays(state)
+        k = self._engine_split()
+        with torch.no_grad():
+            self._view(a).copy_(engine[:, :k])
+            self._view(b).copy_(engine[:, k:])
         if self.featherstone:  # body poses for the collision pipeline (the solver recomputes them on the tape)
             newton.eval_fk(self.model, state.joint_q, state.joint_qd, state)
 
     def _load_frame_inputs(self, frame: _Frame, engine: torch.Tensor, control: torch.Tensor) -> None:
         self._load_state(frame.states[0], engine)
-        flat = wp.from_torch(control.detach().float().reshape(-1).contiguous())
-        wp.copy(self._control_array(frame), flat)
+        with torch.no_grad():
+            self._view(self._control_array(frame)).copy_(control.reshape(self.num_envs, -1))
 
     def _control_array(self, frame: _Frame) -> wp.array:
         """Where a frame's control tensor goes: PD targets, tet activations or joint forces."""
@@ -353,17 +369,14 @@ class NewtonSim(BatchedSim):
         return frame.control.tet_activations if self.soft else frame.control.joint_f
 
     def _outputs(self, frame: _Frame, last: newton.State) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        engine = self._join_engine(*self._state_arrays(last)).clone()
+        engine = self._join_engine(*self._state_arrays(last))
         if self.soft:  # no joints: particle_q / particle_qd are torch views of the engine (simulate)
             empty = engine.new_zeros(self.num_envs, 0)
             return engine, empty, empty.clone()
         if self.featherstone:
             nq = self.layout.nq
             return engine, engine[:, :nq].clone(), engine[:, nq:].clone()
-        n = self.num_envs
-        joint_q = wp.to_torch(frame.joint_q).reshape(n, -1).clone()
-        joint_qd = wp.to_torch(frame.joint_qd).reshape(n, -1).clone()
-        return engine, joint_q, joint_qd
+        return engine, self._view(frame.joint_q).clone(), self._view(frame.joint_qd).clone()
 
     # -- simulation -----------------------------------------------------------------------
     def _substep(
@@ -510,21 +523,21 @@ class NewtonSim(BatchedSim):
             grad_engine, grad_q, grad_qd = total, None, None
         seeds = []
         if grad_engine is not None:
-            seeds += zip((out_a, out_b), self._to_warp(grad_engine.float()), strict=True)
+            k = self._engine_split()
+            seeds += [(out_a, grad_engine[:, :k]), (out_b, grad_engine[:, k:])]
         if self.soft:  # the (N, 0) joint outputs carry no gradient
             grad_q = grad_qd = None
         if grad_q is not None:
-            seeds.append((frame.joint_q, wp.from_torch(grad_q.float().reshape(-1).contiguous())))
+            seeds.append((frame.joint_q, grad_q))
         if grad_qd is not None:
-            seeds.append((frame.joint_qd, wp.from_torch(grad_qd.float().reshape(-1).contiguous())))
+            seeds.append((frame.joint_qd, grad_qd))
         # the incoming gradients go into the outputs' own gradient buffers (zero until now: each
         # backward ends by zeroing the frame's gradients), which is what tape.backward(grads=...) does
         for array, g in seeds:
-            wp.copy(array.grad, g)
+            self._view(array.grad).copy_(g)
         self._replay(frame, "backward_graph", frame.tape.backward)
-        grad_engine_in = self._join_engine(*(a.grad for a in self._state_arrays(frame.states[0]))).clone()
-        control_grad = self._control_array(frame).grad
-        grad_control = wp.to_torch(control_grad).reshape(self.num_envs, -1).clone()
+        grad_engine_in = self._join_engine(*(a.grad for a in self._state_arrays(frame.states[0])))
+        grad_control = self._view(self._control_array(frame).grad).clone()
         # the backward registered every gradient buffer it touched with the tape: zero them all
         self._replay(frame, "zero_graph", frame.tape.zero)
         return grad_engine_in, grad_control
@@ -601,7 +614,9 @@ class NewtonSim(BatchedSim):
                 newton.eval_fk(model, q, qd, out)
         else:
             newton.eval_fk(model, q, qd, out)
-        return self._join_engine(out.body_q, out.body_qd).clone(), (tape, q, qd, out)
+        n = self.num_envs  # fresh arrays per call: plain views, not the cached ones of _view
+        engine = torch.cat((wp.to_torch(out.body_q).reshape(n, -1), wp.to_torch(out.body_qd).reshape(n, -1)), dim=1)
+        return engine, (tape, q, qd, out)
 
 
 @wp.kernel
