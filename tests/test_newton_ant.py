@@ -193,7 +193,8 @@ def test_captured_frames_replay_bit_identical_states_and_gradients(task_name, nu
     """With ``graph_capture`` on (the CPU default) each frame's Warp work runs eagerly on first use, is
     captured on the second and replayed afterwards. Four windows on a ring of ``steps`` frames (the
     second captures every frame's graphs, the last two replay them on new inputs), then forward-only
-    steps (eager, captured, replayed), must give the same states and the same d(loss)/d(actions), d(loss)/d(initial state) to the bit as ``graph_capture=0``.
+    steps (eager, captured, replayed), must give the same states and the same d(loss)/d(actions) and
+    d(loss)/d(initial state) to the bit as ``graph_capture=0``.
     """
     task = make_task(task_name)
 

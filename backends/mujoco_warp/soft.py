@@ -86,7 +86,9 @@ def build_soft_spec(task, scale: float) -> mujoco.MjSpec:
 class SoftEnvModels:
     """Every env's compiled model, its rest positions, and Warp ``Data`` batches keyed by (env, worlds)."""
 
-    def __init__(self, task, num_envs: int, stepper: SubstepReplay, torch_device: torch.device, nconmax: int, njmax: int):
+    def __init__(
+        self, task, num_envs: int, stepper: SubstepReplay, torch_device: torch.device, nconmax: int, njmax: int
+    ):
         self.task, self.stepper, self.device = task, stepper, torch_device
         wp_device = self.wp_device = stepper.wp_device
         self.nconmax, self.njmax = nconmax, njmax

@@ -162,7 +162,9 @@ class NewtonSim(BatchedSim):
         # matrices ask for gradients explicitly below; the solver's remaining model-sized buffers (body
         # inertias and COM frames) depend on parameters only. Option parameter_gradients=1 restores
         # them (as Rewarped builds its models), for A/B measurements; nothing reads them.
-        model = builder.finalize(device=self.wp_device, requires_grad=self._read_flag("parameter_gradients", default=False))
+        model = builder.finalize(
+            device=self.wp_device, requires_grad=self._read_flag("parameter_gradients", default=False)
+        )
         if self.soft:
             self._apply_soft_physics(model)
         else:
@@ -328,13 +330,16 @@ class NewtonSim(BatchedSim):
         """A new (N, D) tensor holding two of the adapter's own (frame) arrays side by side."""
         return torch.cat((self._view(a), self._view(b)), dim=1)
 
-    def _view(self, array: wp.array) -> torch.Tensor:
+    def _view(self, array: wp.array, cache: bool = True) -> torch.Tensor:
         """An (N, -1) torch view of one of the adapter's own Warp arrays, made once and cached.
 
         Only for arrays that live as long as the adapter (frames, their gradients, the control
         buffers): frames never swap their buffers, so a view stays valid, and a cached view spares
         ``wp.to_torch`` / ``wp.from_torch`` + ``wp.copy`` on every step (tens of microseconds each).
+        ``cache=False`` for anyone else's arrays (the bare rollout's): a plain view, nothing kept.
         """
+        if not cache:
+            return wp.to_torch(array).reshape(self.num_envs, -1)
         entry = self._views.get(id(array))
         if entry is None or entry[0] is not array:  # holding the array keeps its id from being reused
             entry = self._views[id(array)] = (array, wp.to_torch(array).reshape(self.num_envs, -1))
@@ -348,12 +353,12 @@ class NewtonSim(BatchedSim):
             return 3 * self.layout.num_particles
         return self.bodies_per_env * _POSE
 
-    def _load_state(self, state: newton.State, engine: torch.Tensor) -> None:
+    def _load_state(self, state: newton.State, engine: torch.Tensor, cache: bool = True) -> None:
         a, b = self._state_arrays(state)
         k = self._engine_split()
         with torch.no_grad():
-            self._view(a).copy_(engine[:, :k])
-            self._view(b).copy_(engine[:, k:])
+            self._view(a, cache).copy_(engine[:, :k])
+            self._view(b, cache).copy_(engine[:, k:])
         if self.featherstone:  # body poses for the collision pipeline (the solver recomputes them on the tape)
             newton.eval_fk(self.model, state.joint_q, state.joint_qd, state)
 
@@ -441,7 +446,7 @@ class NewtonSim(BatchedSim):
         """Run ``work()`` directly, or from the graph ``frame.<name>`` (captured on the spot if missing).
 
         A frame's forward runs directly on its first use and is captured on its second: capturing costs
-        about three eager runs (Warp records every launch), so a frame used once (a short test, an
+        two to three eager runs (Warp records every launch), so a frame used once (a short test, an
         unrolled graph longer than any window) is not made slower. Its backward and zeroing graphs are
         captured from the tape the forward graph recorded, so they follow the forward.
         """
@@ -614,8 +619,8 @@ class NewtonSim(BatchedSim):
                 newton.eval_fk(model, q, qd, out)
         else:
             newton.eval_fk(model, q, qd, out)
-        n = self.num_envs  # fresh arrays per call: plain views, not the cached ones of _view
-        engine = torch.cat((wp.to_torch(out.body_q).reshape(n, -1), wp.to_torch(out.body_qd).reshape(n, -1)), dim=1)
+        # fresh arrays per call: plain views, nothing cached
+        engine = torch.cat((self._view(out.body_q, cache=False), self._view(out.body_qd, cache=False)), dim=1)
         return engine, (tape, q, qd, out)
 
 
@@ -723,7 +728,7 @@ def bare_tape_rollout(sim: NewtonSim, horizon: int, repeats: int = 1, seed: int 
     controls = [model.control(requires_grad=grad) for _ in range(horizon * subs if sim.position_control else horizon)]
     contacts = [sim.pipeline.contacts() for _ in range(horizon)]
     loss = wp.zeros(1, dtype=float, device=model.device, requires_grad=grad)
-    sim._load_state(states[0], sim.state.engine)
+    sim._load_state(states[0], sim.state.engine, cache=False)
     rng = np.random.default_rng(seed)
     targets = []
     for t in range(horizon):
