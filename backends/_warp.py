@@ -1,4 +1,5 @@
-"""What every Warp-based adapter shares: a quiet Warp start-up and the torch -> Warp device name.
+"""What every Warp-based adapter shares: a quiet Warp start-up, the torch -> Warp device name, and
+the reading of 0/1 backend options.
 
 Warp's native library prints "Warp CUDA warning: Could not find or load the NVIDIA CUDA driver" to
 the process's stderr (file descriptor 2, from C) whenever it starts on a machine without a GPU
@@ -15,6 +16,8 @@ import tempfile
 
 import torch
 import warp as wp
+
+from backends.contract import BackendError
 
 NO_DRIVER_LINE = "Could not find or load the NVIDIA CUDA driver"
 
@@ -53,3 +56,11 @@ def warp_device(device: torch.device) -> str:
     if device.type == "cpu":
         return "cpu"
     return f"cuda:{device.index or 0}"
+
+
+def option_flag(options: dict, name: str, default: bool, backend: str) -> bool:
+    """A 0/1 backend option: ``options[name]`` if given, else ``default``; anything else is refused."""
+    value = options.get(name, int(default))
+    if value in (0, 1, "true", "false"):  # CLI: 0/1 arrive as ints, true/false as strings; TOML booleans equal 0/1
+        return value in (1, "true")
+    raise BackendError(f"{backend} option {name} must be 0 or 1, got {value!r}")

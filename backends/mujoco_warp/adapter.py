@@ -115,7 +115,7 @@ import mujoco_warp as mjw
 import torch
 import warp as wp
 
-from backends._warp import warp_device
+from backends._warp import option_flag, warp_device
 from backends.contract import BackendError, BatchedSim
 from backends.mujoco_warp.soft import SoftEnvModels
 from backends.mujoco_warp.stepping import SubstepReplay, run_substeps
@@ -228,10 +228,8 @@ class MujocoWarpSim(BatchedSim):
     def _build(self) -> None:
         task = self.task
         self.wp_device = warp_device(self.device)
-        capture = self.options.get("graph_capture", int(self.device.type == "cpu"))
-        if capture not in (0, 1, "true", "false"):  # CLI: 0/1 arrive as ints, true/false as strings
-            raise BackendError(f"mujoco_warp option graph_capture must be 0 or 1, got {capture!r}")
-        self.stepper = SubstepReplay(capture in (1, "true"), self.wp_device)
+        capture = option_flag(self.options, "graph_capture", self.device.type == "cpu", self.name)
+        self.stepper = SubstepReplay(capture, self.wp_device)
         self.soft = task.control_kind == ControlKind.TET_ACTIVATION
         if self.soft:
             return self._build_soft()

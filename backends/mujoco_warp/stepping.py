@@ -16,7 +16,7 @@ class SubstepReplay:
     One ``mujoco_warp.step`` is ~100 kernel launches; on Warp's CPU device each costs tens of
     microseconds of Python (argument packing) before its kernel runs, which is what makes a step of
     64 Ant worlds launch-bound. ``wp.capture_launch`` replays the same launches on the same buffers
-    from C++, bit-identically (tests/test_mujoco_warp_adapter.py). A ``Data`` keeps its buffers for
+    from C++, bit-identically (tests/test_mujoco_warp_ant.py). A ``Data`` keeps its buffers for
     its lifetime and every input (state, applied forces) is written into them in place, so its graph
     stays valid. The first step of a ``Data`` runs directly (it loads MuJoCo-Warp's kernels), the
     second is captured, the rest replay. ``enabled=False`` (option ``graph_capture=0``) always steps

@@ -54,7 +54,7 @@ import numpy as np
 import torch
 import warp as wp
 
-from backends._warp import warp_device
+from backends._warp import option_flag, warp_device
 from backends.contract import BackendError, BatchedSim
 from simcore import ControlKind, SimState, StateLayout
 
@@ -143,7 +143,7 @@ class NewtonSim(BatchedSim):
         if self.soft and self.featherstone:
             raise BackendError("soft bodies run on the semi_implicit solver (featherstone has no FEM)")
         self.wp_device = warp_device(self.device)
-        self.graph_capture = self._read_flag("graph_capture", default=self.device.type == "cpu")
+        self.graph_capture = option_flag(self.options, "graph_capture", self.device.type == "cpu", self.name)
 
         shape_cfg = newton.ModelBuilder.ShapeConfig(
             ke=phys.contact_ke, kd=phys.contact_kd, kf=phys.contact_kf, mu=phys.contact_mu, gap=contact_gap
@@ -163,7 +163,7 @@ class NewtonSim(BatchedSim):
         # inertias and COM frames) depend on parameters only. Option parameter_gradients=1 restores
         # them (as Rewarped builds its models), for A/B measurements; nothing reads them.
         model = builder.finalize(
-            device=self.wp_device, requires_grad=self._read_flag("parameter_gradients", default=False)
+            device=self.wp_device, requires_grad=option_flag(self.options, "parameter_gradients", False, self.name)
         )
         if self.soft:
             self._apply_soft_physics(model)
@@ -293,12 +293,6 @@ class NewtonSim(BatchedSim):
         # which clips to the torque limits as the task's law says; Newton's drive would not)
         model.joint_target_ke.assign(per_dof(0.0))
         model.joint_target_kd.assign(per_dof(0.0))
-
-    def _read_flag(self, name: str, default: bool) -> bool:
-        value = self.options.get(name, int(default))
-        if value in (0, 1, "true", "false"):  # CLI: 0/1 arrive as ints, true/false as strings; TOML booleans equal 0/1
-            return value in (1, "true")
-        raise BackendError(f"newton option {name} must be 0 or 1, got {value!r}")
 
     @property
     def layout(self) -> StateLayout:
