@@ -157,29 +157,31 @@ def test_a_model_without_parameter_gradients_gives_bit_identical_gradients(task_
     per-frame matrices changes the Go2's action gradients by up to 9.8).
     """
     task = make_task(task_name)
-
-    def gradients(sim):
-        gen = torch.Generator().manual_seed(5)
-        engine = sim.state.engine.detach().clone().requires_grad_(True)
-        sim.state = dataclasses.replace(sim.state, engine=engine)
-        actions = [
-            (2.0 * torch.rand(num_envs, task.action_dim, generator=gen) - 1.0).requires_grad_(True)
-            for _ in range(steps)
-        ]
-        loss = 0.0
-        for a in actions:
-            s = sim.step(a)
-            loss = loss + s.engine.square().sum() + s.joint_q.sum() + s.joint_qd.sum()
-        loss.backward()
-        return torch.stack([a.grad for a in actions]), engine.grad
-
     plain = make("newton", task, num_envs=num_envs, seed=0)
     with_params = make("newton", task, num_envs=num_envs, seed=0, parameter_gradients=1)
     assert not plain.model.requires_grad and with_params.model.requires_grad
-    ga, ea = gradients(plain)
-    gb, eb = gradients(with_params)
+    _, ga, ea = _window_gradients(plain, steps, torch.Generator().manual_seed(5))
+    _, gb, eb = _window_gradients(with_params, steps, torch.Generator().manual_seed(5))
     assert ga.abs().max() > 0 and ea.abs().max() > 0
     assert torch.equal(ga, gb) and torch.equal(ea, eb)
+
+
+def _window_gradients(sim, steps: int, gen: torch.Generator):
+    """One window of ``steps`` random actions from the current state, with a loss on every output:
+    the next engine states, d(loss)/d(actions) stacked, and d(loss)/d(initial engine state)."""
+    engine = sim.state.engine.detach().clone().requires_grad_(True)
+    sim.state = dataclasses.replace(sim.state, engine=engine)
+    actions = [
+        (2.0 * torch.rand(sim.num_envs, sim.task.action_dim, generator=gen) - 1.0).requires_grad_(True)
+        for _ in range(steps)
+    ]
+    loss, states = 0.0, []
+    for a in actions:
+        s = sim.step(a)
+        states.append(s.engine.detach().clone())
+        loss = loss + s.engine.square().sum() + s.joint_q.sum() + s.joint_qd.sum()
+    loss.backward()
+    return states, torch.stack([a.grad for a in actions]), engine.grad
 
 
 def test_parameter_gradients_option_takes_0_or_1(ant):
@@ -203,19 +205,8 @@ def test_captured_frames_replay_bit_identical_states_and_gradients(task_name, nu
         out = []
         for _window in range(4):
             sim.cut_graph()
-            engine = sim.state.engine.detach().clone().requires_grad_(True)
-            sim.state = dataclasses.replace(sim.state, engine=engine)
-            actions = [
-                (2.0 * torch.rand(num_envs, task.action_dim, generator=gen) - 1.0).requires_grad_(True)
-                for _ in range(steps)
-            ]
-            loss = 0.0
-            for a in actions:
-                s = sim.step(a)
-                out.append(s.engine.detach().clone())
-                loss = loss + s.engine.square().sum() + s.joint_q.sum() + s.joint_qd.sum()
-            loss.backward()
-            out += [a.grad for a in actions] + [engine.grad]
+            states, action_grads, engine_grad = _window_gradients(sim, steps, gen)
+            out += states + [action_grads, engine_grad]
         with torch.no_grad():
             for _ in range(3):
                 out.append(sim.step(torch.rand(num_envs, task.action_dim, generator=gen) * 2.0 - 1.0).engine.clone())
