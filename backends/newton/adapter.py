@@ -332,11 +332,15 @@ class NewtonSim(BatchedSim):
         ``wp.to_torch`` / ``wp.from_torch`` + ``wp.copy`` on every step (tens of microseconds each).
         ``cache=False`` for anyone else's arrays (the bare rollout's): a plain view, nothing kept.
         """
+        # made in grad mode whatever the caller's mode: torch refuses to use in grad mode a view made
+        # under no_grad once its base (the tensor wp.to_torch keeps on the array) was written in place
         if not cache:
-            return wp.to_torch(array).reshape(self.num_envs, -1)
+            with torch.enable_grad():
+                return wp.to_torch(array).reshape(self.num_envs, -1)
         entry = self._views.get(id(array))
         if entry is None or entry[0] is not array:  # holding the array keeps its id from being reused
-            entry = self._views[id(array)] = (array, wp.to_torch(array).reshape(self.num_envs, -1))
+            with torch.enable_grad():
+                entry = self._views[id(array)] = (array, wp.to_torch(array).reshape(self.num_envs, -1))
         return entry[1]
 
     def _engine_split(self) -> int:
