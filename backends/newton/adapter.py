@@ -59,7 +59,6 @@ from backends.contract import BackendError, BatchedSim
 from simcore import ControlKind, SimState, StateLayout
 
 _POSE = 7  # wp.transform: position (3) + quaternion xyzw (4)
-_TWIST = 6  # wp.spatial_vector: COM linear velocity (3) + angular velocity (3), world frame
 
 
 class _Frame:
@@ -299,19 +298,6 @@ class NewtonSim(BatchedSim):
         return self.task.layout
 
     # -- torch <-> warp -------------------------------------------------------------------
-    def _split_engine(self, engine: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """The engine rows as the two flat Warp-shaped arrays of the solver's state."""
-        if self.featherstone:
-            nq = self.layout.nq
-            return engine[:, :nq].reshape(-1).contiguous(), engine[:, nq:].reshape(-1).contiguous()
-        if self.soft:
-            half = 3 * self.layout.num_particles
-            return engine[:, :half].reshape(-1, 3).contiguous(), engine[:, half:].reshape(-1, 3).contiguous()
-        n_pose = self.bodies_per_env * _POSE
-        body_q = engine[:, :n_pose].reshape(-1, _POSE).contiguous()
-        body_qd = engine[:, n_pose:].reshape(-1, _TWIST).contiguous()
-        return body_q, body_qd
-
     def _state_arrays(self, state: newton.State) -> tuple[wp.array, wp.array]:
         """The solver state's own variables: generalized for Featherstone, maximal otherwise."""
         if self.featherstone:
@@ -689,17 +675,14 @@ class _NewtonFK(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad_engine):
-        q, qd, out = ctx.arrays
-        g_q, g_qd = ctx.sim._split_engine(grad_engine.float())
-        ctx.tape.backward(
-            grads={
-                out.body_q: wp.from_torch(g_q, dtype=wp.transform),
-                out.body_qd: wp.from_torch(g_qd, dtype=wp.spatial_vector),
-            }
-        )
-        n = ctx.sim.num_envs
-        grad_q = wp.to_torch(q.grad).reshape(n, -1).clone()
-        grad_qd = wp.to_torch(qd.grad).reshape(n, -1).clone()
+        sim, (q, qd, out) = ctx.sim, ctx.arrays
+        k = sim._engine_split()  # seeded as NewtonSim._backward_taped seeds a frame's outputs
+        with torch.no_grad():
+            sim._view(out.body_q.grad, cache=False).copy_(grad_engine[:, :k])
+            sim._view(out.body_qd.grad, cache=False).copy_(grad_engine[:, k:])
+        ctx.tape.backward()
+        grad_q = sim._view(q.grad, cache=False).clone()
+        grad_qd = sim._view(qd.grad, cache=False).clone()
         ctx.tape.zero()
         return None, grad_q, grad_qd
 
