@@ -317,7 +317,7 @@ def test_captured_substeps_replay_bit_identical_steps_and_jacobians(task_name):
     eager = make("mujoco_warp", task, num_envs=n, seed=2, graph_capture=0)
     assert captured.stepper.enabled and not eager.stepper.enabled
     a, b = run(captured), run(eager)
-    graphs = [entry[3] for entry in captured.stepper._entries.values()]
+    graphs = [entry.graph for entry in captured.stepper._entries.values()]
     assert graphs and all(g is not None for g in graphs) and not eager.stepper._entries
     assert all(x.abs().max() > 0 for x in a)
     for x, y in zip(a, b, strict=True):

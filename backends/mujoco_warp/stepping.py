@@ -4,6 +4,7 @@ substep one ``mujoco_warp.step`` run directly or replayed from a captured graph 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import mujoco_warp as mjw
 import torch
@@ -23,27 +24,33 @@ class SubstepReplay:
     directly.
     """
 
+    @dataclass
+    class _Entry:
+        data: mjw.Data  # held, so that its id is not reused while the entry exists
+        model: mjw.Model
+        steps: int = 0
+        graph: wp.Graph | None = None
+
     def __init__(self, enabled: bool, wp_device: str):
         self.enabled, self.wp_device = enabled, wp_device
-        # id(data) -> [data, model, steps so far, graph]; holding data keeps its id from being reused
-        self._entries: dict[int, list] = {}
+        self._entries: dict[int, SubstepReplay._Entry] = {}  # by id(data)
 
     def step(self, model: mjw.Model, data: mjw.Data) -> None:
         if not self.enabled:
             mjw.step(model, data)
             return
         entry = self._entries.get(id(data))
-        if entry is None or entry[0] is not data or entry[1] is not model:
-            entry = self._entries[id(data)] = [data, model, 0, None]
-        entry[2] += 1
-        if entry[3] is None and entry[2] > 1:
+        if entry is None or entry.data is not data or entry.model is not model:
+            entry = self._entries[id(data)] = SubstepReplay._Entry(data, model)
+        entry.steps += 1
+        if entry.graph is None and entry.steps > 1:
             with wp.ScopedCapture(device=self.wp_device) as capture:  # records, runs nothing
                 mjw.step(model, data)
-            entry[3] = capture.graph
-        if entry[3] is None:
+            entry.graph = capture.graph
+        if entry.graph is None:
             mjw.step(model, data)
         else:
-            wp.capture_launch(entry[3])
+            wp.capture_launch(entry.graph)
 
 
 def run_substeps(
