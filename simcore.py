@@ -57,6 +57,24 @@ class StateLayout:
         return (6 if self.floating_base else 0) + self.num_dofs
 
 
+def sum_is_finite(tensor: torch.Tensor) -> bool:
+    """True when the sum of ``tensor`` is finite, which proves every entry finite (a NaN makes the
+    sum NaN, an inf makes it inf or NaN). One reduction: the row-by-row ``isfinite`` check costs
+    about five times as many torch calls, and the contract checks three tensors every step."""
+    return math.isfinite(float(tensor.detach().sum()))
+
+
+def nonfinite_rows(tensor: torch.Tensor) -> list[int]:
+    """Rows (first index) of ``tensor`` that hold a NaN or inf, ascending; [] when all are finite.
+
+    A finite sum settles it in one reduction (:func:`sum_is_finite`); otherwise (a bad entry, or
+    finite entries large enough to overflow the sum) the exact row-by-row check decides."""
+    if sum_is_finite(tensor):
+        return []
+    values = tensor.detach()
+    return (~torch.isfinite(values).reshape(values.shape[0], -1).all(dim=1)).nonzero().flatten().tolist()
+
+
 @dataclass
 class SimState:
     """Batched backend-neutral state; see the module docstring for the layout."""
@@ -118,6 +136,16 @@ class SimState:
             env_ok = torch.isfinite(value.detach()).reshape(value.shape[0], -1).all(dim=1)
             ok = env_ok if ok is None else ok & env_ok
         return ok
+
+    def nonfinite_envs(self) -> list[int]:
+        """The envs whose state holds a NaN or inf, in ascending order ([] for a finite state).
+
+        The per-step check of :meth:`BatchedSim.advance`: one sum per tensor when every sum is finite
+        (the common case: :func:`sum_is_finite`), the row-by-row :meth:`finite_envs` otherwise.
+        """
+        if all(sum_is_finite(value) for value in self.tensors().values()):
+            return []
+        return (~self.finite_envs()).nonzero().flatten().tolist()
 
 
 @dataclass(frozen=True)

@@ -42,7 +42,7 @@ from abc import ABC, abstractmethod
 
 import torch
 
-from simcore import ControlKind, SimState, StateLayout, TaskSpec
+from simcore import ControlKind, SimState, StateLayout, TaskSpec, nonfinite_rows
 
 
 class BackendError(RuntimeError):
@@ -188,9 +188,8 @@ class BatchedSim(ABC):
 
         Non-finite controls (a task's mapping gone wrong, or a direct ``simulate`` call) are refused
         here, before any engine sees them."""
-        bad = ~torch.isfinite(control.detach()).reshape(control.shape[0], -1).all(dim=1)
-        if bool(bad.any()):
-            ids = bad.nonzero().flatten().tolist()
+        ids = nonfinite_rows(control)
+        if ids:
             raise InvalidActionError(
                 f"{self.task.control_kind.value} control contains NaN or inf for env(s) {ids[:16]}"
             )
@@ -289,9 +288,8 @@ class BatchedSim(ABC):
             raise InvalidActionError(f"actions must have shape {expected}, got {tuple(actions.shape)}")
         if not actions.is_floating_point():
             raise InvalidActionError(f"actions must be a floating-point tensor, got {actions.dtype}")
-        bad = ~torch.isfinite(actions.detach()).all(dim=1)
-        if bad.any():
-            ids = bad.nonzero().flatten().tolist()
+        ids = nonfinite_rows(actions)
+        if ids:
             raise InvalidActionError(f"actions contain NaN or inf for env(s) {ids[:16]}")
         return actions.to(device=self.device, dtype=torch.float32)
 
@@ -302,9 +300,9 @@ class BatchedSim(ABC):
         """
         actions = self.validate_actions(actions)
         next_state = self.simulate(state, self.task.actions_to_control(actions))
-        finite = next_state.finite_envs()
-        if not bool(finite.all()):
-            raise NonFiniteStateError((~finite).nonzero().flatten().tolist(), self.step_count + 1)
+        bad = next_state.nonfinite_envs()
+        if bad:
+            raise NonFiniteStateError(bad, self.step_count + 1)
         return next_state
 
     def step(self, actions: torch.Tensor) -> SimState:

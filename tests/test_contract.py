@@ -17,7 +17,7 @@ import torch
 import backends
 from backends import BackendError, InvalidActionError, NonFiniteStateError
 from harness.gradcheck import DEFAULT_TOLERANCE, gradcheck
-from simcore import ControlKind, quat_from_angle_axis, quat_mul
+from simcore import ControlKind, SimState, nonfinite_rows, quat_from_angle_axis, quat_mul
 from tasks import make_task
 
 BACKENDS = backends.available()
@@ -166,6 +166,29 @@ def test_non_finite_simulation_is_reported_per_env(adapter):
     with pytest.raises(NonFiniteStateError) as info, torch.no_grad():
         sim.step(torch.zeros(N, task.action_dim))
     assert info.value.env_ids == [1]
+
+
+@pytest.mark.parametrize(
+    ("entries", "expected"),
+    [
+        ({}, []),
+        ({(3, 1): float("nan")}, [3]),
+        ({(0, 0): float("inf"), (4, 2): float("-inf")}, [0, 4]),
+        ({(2, 0): float("inf"), (2, 1): float("-inf")}, [2]),  # inf - inf: the sum is NaN, still caught
+        ({(1, 0): 3.0e38, (1, 1): 3.0e38}, []),  # finite entries whose sum overflows: the exact check decides
+    ],
+)
+def test_the_one_sum_finiteness_check_finds_exactly_the_bad_rows(entries, expected):
+    """The per-step checks (actions, controls, states) sum a tensor first and look row by row only
+    when the sum is not finite; the rows they report equal the row-by-row isfinite check's."""
+    values = torch.randn(6, 3, 2)
+    for (row, col), value in entries.items():
+        values[row, col, 0] = value
+    reference = (~torch.isfinite(values).flatten(1).all(dim=1)).nonzero().flatten().tolist()
+    assert reference == expected
+    assert nonfinite_rows(values) == expected
+    state = SimState(joint_q=torch.zeros(6, 2), joint_qd=values[:, :, 0], engine=torch.zeros(6, 1))
+    assert state.nonfinite_envs() == expected
 
 
 def test_an_unsupported_control_kind_is_refused_at_build_time_in_one_line(adapter):
