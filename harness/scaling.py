@@ -129,8 +129,9 @@ def plot(csv_paths: list[str | Path], out_png: str | Path, title: str = "") -> P
                     )
     data = pd.DataFrame(records)
     sns.set_theme(style="whitegrid")
-    fig, ax = plt.subplots(figsize=(8, 5.5))
+    fig, ax = plt.subplots(figsize=(10, 5.5))
     sns.lineplot(data=data, x="num envs", y="env-steps/s", hue="backend / task", style="pass", markers=True, ax=ax)
+    sns.move_legend(ax, "upper left", bbox_to_anchor=(1.01, 1.0))  # beside the axes: inside, it hid curves
     ax.set_xscale("log", base=2)
     ax.set_yscale("log")
     ax.set_title(title or "throughput vs number of envs (log-log)")
