@@ -111,8 +111,7 @@ class BatchedSim(ABC):
             if tuple(value.shape) != shape:
                 raise InvalidStateError(f"{name} must have shape {shape}, got {tuple(value.shape)}")
         if layout.num_particles:
-            particles = torch.cat((particle_q.detach(), particle_qd.detach()), dim=1)
-            bad = (~torch.isfinite(particles).flatten(1).all(dim=1)).nonzero().flatten().tolist()
+            bad = nonfinite_rows(torch.cat((particle_q.detach(), particle_qd.detach()), dim=1))
             if bad:
                 raise InvalidStateError(f"particle state contains NaN or inf in env(s) {bad[:16]}")
         if layout.floating_base:
