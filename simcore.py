@@ -133,7 +133,8 @@ class SimState:
 
 @dataclass(frozen=True)
 class PhysicsSpec:
-    """Engine-neutral physical constants of a task; every adapter must apply them.
+    """Engine-neutral physical constants of a task; every adapter applies each of them or refuses the
+    spec (``BatchedSim.physics_mapping`` says how; ``tests/test_physics_mapping.py`` checks it).
 
     ``JOINT_POSITION_TARGET`` control follows one PD law, evaluated by every adapter at every
     substep (:meth:`pd_torque` is its reference): tau = clip(kp (q* - q) - kd qd, -limit, limit).

@@ -16,6 +16,14 @@ What an adapter writes (the abstract part, engine-specific):
 * :meth:`BatchedSim.simulate` - ``(state, control) -> next state`` for one control step,
   differentiable through torch autograd w.r.t. the incoming state and the control.
 
+* :meth:`BatchedSim.physics_mapping` - how the adapter applies every field of the task's
+  :class:`simcore.PhysicsSpec` (engine parameter and conversion), or why a field cannot act on this
+  task. The base class refuses, at build time and in one line naming the field, an adapter that
+  leaves a field unaccounted for; a field the adapter cannot honour for this task is refused by the
+  adapter itself (a :class:`BackendError` naming it). ``tests/test_contract.py`` perturbs every field
+  and checks that what the mapping says acts does change the simulation, and what it calls inert
+  does not.
+
 Optional: :meth:`BatchedSim.bare_engine_rollout`, the same model stepped by the engine alone (the
 reference ``throughput`` compares the adapter against).
 
@@ -37,16 +45,40 @@ reach (the harness passes the window length h). Adapters whose gradients need pe
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from abc import ABC, abstractmethod
 
 import torch
 
-from simcore import ControlKind, SimState, StateLayout, TaskSpec, nonfinite_rows
+from simcore import ControlKind, PhysicsSpec, SimState, StateLayout, TaskSpec, nonfinite_rows
 
 
 class BackendError(RuntimeError):
     """Base class for errors raised by the backend layer."""
+
+
+#: how a :meth:`BatchedSim.physics_mapping` entry says that a field cannot act on this task
+INERT = "inert: "
+
+
+def inert_by_definition(task: TaskSpec) -> dict[str, str]:
+    """The :class:`PhysicsSpec` fields that by the spec's own definition cannot act on ``task``, with
+    why: the PD law's constants without position targets, the contact constants without a ground
+    plane, the joint constants of a body without joints. Adapters start their mapping from this."""
+    phys, inert = task.physics, {}
+    if task.control_kind != ControlKind.JOINT_POSITION_TARGET:
+        for name in ("pd_kp", "pd_kd", "torque_limits"):
+            inert[name] = (
+                f"{INERT}the PD law of joint position targets; task {task.name!r} sends {task.control_kind.value}"
+            )
+    if not phys.ground_plane:
+        for name in ("contact_ke", "contact_kd", "contact_kf", "contact_mu"):
+            inert[name] = f"{INERT}ground contact; the spec has no ground plane"
+    if task.layout.num_dofs == 0:
+        for name in ("joint_limit_ke", "joint_limit_kd", "joint_damping", "armature"):
+            inert[name] = f"{INERT}task {task.name!r} has no articulated joints"
+    return inert
 
 
 class InvalidActionError(BackendError, ValueError):
@@ -153,7 +185,32 @@ class BatchedSim(ABC):
                 f"task {task.name!r} needs {task.control_kind.value}"
             )
         self._build()
+        self._check_physics_mapping()
         self._state: SimState = self._initial_state()
+
+    def _check_physics_mapping(self) -> None:
+        """Refuse an adapter that does not say how it applies some field of the task's physics spec."""
+        mapping = self.physics_mapping()
+        for f in dataclasses.fields(PhysicsSpec):
+            if not str(mapping.get(f.name, "")).strip():
+                raise BackendError(
+                    f"the {self.name} adapter does not say how it applies PhysicsSpec.{f.name} to task "
+                    f"{self.task.name!r}; it must map or refuse every field (BatchedSim.physics_mapping)"
+                )
+
+    @property
+    def integrator(self) -> str:
+        """The engine's integrator in words (result files and ``throughput`` name it)."""
+        return self.name
+
+    def physics_mapping(self) -> dict[str, str]:
+        """How this adapter applies each :class:`PhysicsSpec` field to its task: ``{field: text}``, the
+        text naming the engine parameter and the conversion, or starting with ``"inert: "`` and saying
+        why the field cannot act on this task (:func:`inert_by_definition` gives the spec's own cases).
+        A field the adapter cannot honour is refused in :meth:`_build`, not listed. Result files carry
+        this mapping. The base class declares nothing, so an adapter that does not override it is
+        refused at build time."""
+        return {}
 
     def check_torque_limits(self) -> None:
         """JOINT_POSITION_TARGET tasks: one torque limit per actuated joint, or none."""

@@ -11,7 +11,7 @@
   and any AlgoConfig field under ``[train.hyperparameters]``; ``[train.per_task.TASK]`` overrides
   ``epochs``, ``num_envs``, ``horizons``, ``seeds`` or hyperparameters for one task, and
   ``[train.eval]`` the evaluation protocol for the block (``seeds = 0``: no evaluation);
-* ``[[check]]``: ``kind`` (gradcheck, throughput, crosscheck), ``backends``, ``tasks`` and the verb's
+* ``[[check]]``: ``kind`` (gradcheck, throughput, crosscheck, parity), ``backends``, ``tasks`` and the verb's
   extra ``args`` (a list of command-line words), optionally ``[check.per_task.TASK]`` with ``args``;
 * ``[[sim_to_sim]]``: runs of the train grid (``task``, ``train_backend``, ``algos``, ``seeds``,
   ``horizon``) evaluated on ``train_backend`` and ``eval_backend`` with one protocol (``eval_seeds``,
@@ -50,7 +50,8 @@ from harness.claims import Claim
 from harness.results import RunError, RunStopped
 
 PROFILES_DIR = Path(__file__).resolve().parent / "profiles"
-CHECK_KINDS = ("gradcheck", "throughput", "crosscheck")
+CHECK_KINDS = ("gradcheck", "throughput", "crosscheck", "parity")
+MULTI_BACKEND_KINDS = ("crosscheck", "parity")  # one job over all of a block's backends
 
 # Seconds per env step of a training epoch (simulation with gradients and the updates) on this 2-core
 # CPU, from the runs in results/ (README). Only the first ETA uses them: finished jobs correct them.
@@ -70,7 +71,7 @@ _SECONDS_PER_EVAL_STEP = {
     ("mujoco_warp", "go2"): 6e-3,
     ("mujoco_warp", "soft_jumper"): 1.0,
 }
-_CHECK_SECONDS = {"gradcheck": 40.0, "throughput": 60.0, "crosscheck": 60.0}
+_CHECK_SECONDS = {"gradcheck": 40.0, "throughput": 60.0, "crosscheck": 60.0, "parity": 120.0}
 _STARTUP_S = 12.0  # a job's process start, imports and model build (Warp kernels cached)
 
 
@@ -366,14 +367,14 @@ def plan(data: dict, store: Path) -> list[Job]:
         for task in _names(block.get("tasks", []), f"{where} tasks"):
             _known(task, known["tasks"], "task", where)
             args = [str(a) for a in block.get("args", []) + block.get("per_task", {}).get(task, {}).get("args", [])]
-            if kind == "crosscheck":
+            if kind in MULTI_BACKEND_KINDS:
                 targets = [("-".join(blist), ["--task", task, "--backends", *blist])]
             else:
                 targets = [(b, ["--backend", b, "--task", task]) for b in blist]
             for label_backend, words in targets:
                 key = _hash([kind, *words, *args, device])
                 out = store / "checks" / f"{kind}_{task}_{label_backend}_{key}.json"
-                if kind != "crosscheck":
+                if kind not in MULTI_BACKEND_KINDS:
                     words = [*words, "--device", device]
                 jobs.append(
                     Job(

@@ -256,6 +256,8 @@ def _check_kind(name: str, result: dict) -> str:
         return "throughput"
     if "segments" in result:
         return "crosscheck"
+    if "gaps" in result and "holds" in result:
+        return "parity"
     if "com" in result and "pairs" in result:
         return "forward-crosscheck"
     return name.split("_", 1)[0] if "_" in name else "unknown"
@@ -769,6 +771,13 @@ def check_summary(check: CheckRecord) -> str:
     if check.kind == "crosscheck":
         cosine, rel_diff = _pairs_summary(r.get("segments", {}), ("cosine", "rel_diff"))
         return f"gradients across backends: min cosine {_fmt(cosine)}, max rel. difference {_fmt(rel_diff)}"
+    if check.kind == "parity":
+        g = r.get("gaps", {})
+        return (
+            f"engines: settle height gap {_fmt(g.get('settle_height_m'))} m, joint gap "
+            f"{_fmt(g.get('settle_joint_rad'))} rad, first-episode length gap {_fmt(g.get('episode_length_rel'))} "
+            "(relative)"
+        )
     if check.kind == "forward-crosscheck":
         _, gap = _pairs_summary(r.get("pairs", {}), ("", "com_distance_max"))
         return f"forward rollouts across backends: max centre-of-mass distance {_fmt(gap)} m, {r.get('steps')} steps"
@@ -779,6 +788,8 @@ def _check_backends(check: CheckRecord) -> str | None:
     r = check.result
     if r.get("backend"):
         return str(r["backend"])
+    if r.get("backends"):
+        return ", ".join(r["backends"])
     pairs = r.get("pairs") or next(iter((r.get("segments") or {}).values()), {}).get("pairs", {})
     names = sorted({name for pair in pairs for name in pair.split(" vs ")})
     return ", ".join(names) or None

@@ -110,6 +110,8 @@ def _optional_float(text: str) -> float | None:
 FLAGS: dict[str, dict] = {
     "backend": {"help": "adapter name (see `list`)"},
     "backends": {"nargs": "+", "help": "two or more adapter names (see `list`)"},
+    "preset": {"help": "the task's physics preset (see `list`; default: the task's own default)"},
+    "episode_seeds": {"type": _positive_int, "default": 5, "help": "seeds of the random-policy episodes"},
     "task": {"help": "task name (see `list`)"},
     "algo": {"help": "one of: shac, shac-tdfixed, shac-tdadpt, sapo, sapo-tdfixed, sapo-tdadpt"},
     "algos": {"nargs": "+", "help": "algorithm presets to train, e.g. shac shac-tdadpt"},
@@ -158,6 +160,7 @@ FLAGS: dict[str, dict] = {
 VERB_DEFAULTS: dict[str, dict] = {
     "gradcheck": {"num_envs": 2},  # finite differences perturb every env at once: 2 envs say as much as 64
     "crosscheck": {"num_envs": 4},
+    "parity": {"num_envs": 64, "steps": 100, "max_steps": 300, "backends": ["newton", "mujoco_warp"]},
     "throughput": {"num_envs": 64, "horizon": 32, "windows": 5},
     "sweep": {"num_envs": 64, "horizon": 32},
     "grad-growth": {"windows": 3},
@@ -225,6 +228,7 @@ def build_parser() -> argparse.ArgumentParser:
         "steps",
         "tolerance",
         "backend_option",
+        "preset",
         "out",
         required=("backend", "task"),
     )
@@ -283,6 +287,26 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add(p, "crosscheck", "task", "backends", "num_envs", "steps", "seed", "out", required=("task", "backends"))
 
+    p = sub.add_parser(
+        "parity",
+        help="do two engines simulate the same task: settle, contact and limit probes, open-loop divergence, "
+        "random-policy episode lengths (table, plot, JSON)",
+    )
+    _add(
+        p,
+        "parity",
+        "task",
+        "backends",
+        "preset",
+        "num_envs",
+        "episode_seeds",
+        "steps",
+        "max_steps",
+        "seed",
+        "out",
+        required=("task",),
+    )
+
     p = sub.add_parser("throughput", help="env-steps/s forward-only and forward+backward, and the bare engine")
     _add(
         p,
@@ -296,6 +320,7 @@ def build_parser() -> argparse.ArgumentParser:
         "windows",
         "out",
         "backend_option",
+        "preset",
         required=("backend", "task"),
     )
     p.add_argument(
@@ -415,7 +440,8 @@ def _make_sim(args, horizon: int):
 
     try:
         options = dict(getattr(args, "backend_option", None) or [])
-        return make_sim(args.backend, make_task(args.task), args.num_envs, args.device, args.seed, horizon, **options)
+        task = make_task(args.task, preset=getattr(args, "preset", None))
+        return make_sim(args.backend, task, args.num_envs, args.device, args.seed, horizon, **options)
     except (RuntimeError, ValueError) as exc:
         raise BadInput(f"cannot build {args.backend}/{args.task} on {args.device}: {exc}") from exc
 
@@ -462,6 +488,11 @@ def cmd_list(args) -> int:
 
     print("backends: " + ", ".join(backends.available()))
     print("tasks:    " + ", ".join(tasks.available()))
+    for name in tasks.available():
+        cls = tasks.task_class(name)
+        for preset, value in getattr(cls, "presets", {}).items():
+            default = " (default)" if preset == cls.default_preset else ""
+            print(f"  {name} preset {preset}{default}: {value.about}")
     return 0
 
 
@@ -506,6 +537,7 @@ def cmd_gradcheck(args) -> int:
             "max_rel_error": result.max_rel_error,
             "tolerance": tolerance,
             "passed": ok,
+            **sim_physics(sim),
         }
         print(f"wrote {write_json(args.out, {'result': summary, 'provenance': provenance(_command())})}")
     return 0 if ok else 1
@@ -520,7 +552,11 @@ def cmd_throughput(args) -> int:
     if args.out:
         _check_output_file(args.out)
     sim = _make_sim(args, horizon=args.horizon)
-    print(f"throughput {args.backend}/{args.task}: {args.num_envs} envs, windows of {args.horizon} steps", flush=True)
+    print(
+        f"throughput {args.backend}/{args.task} (preset {sim.task.preset_label}, {sim.integrator}): "
+        f"{args.num_envs} envs, windows of {args.horizon} steps",
+        flush=True,
+    )
     if args.grad_cost_only:
         return _grad_cost_only(sim, args)
     result = measure(sim, horizon=args.horizon, windows=args.windows, seed=args.seed)
@@ -534,7 +570,7 @@ def cmd_throughput(args) -> int:
         print(f"  bare engine:         {result.bare_engine_steps_per_s:10.0f} env-steps/s (forward + backward)")
         print(f"  adapter / bare time: {result.overhead_ratio:10.3f} (forward + backward)")
     if args.out:
-        path = write_json(args.out, {"result": result.as_dict(), "provenance": provenance()})
+        path = write_json(args.out, {"result": {**result.as_dict(), **sim_physics(sim)}, "provenance": provenance()})
         print(f"wrote {path}")
     return 0
 
@@ -786,6 +822,57 @@ def cmd_grad_growth(args) -> int:
     return 0
 
 
+def sim_physics(sim) -> dict:
+    """What a check's result file says about the physics it ran: preset, constants, integrator, mapping."""
+    return {**sim.task.physics_record(), "integrator": sim.integrator, "physics_mapping": sim.physics_mapping()}
+
+
+def cmd_parity(args) -> int:
+    from pathlib import Path
+
+    from harness.parity import parity, plot, table
+    from harness.results import atomic_write_text, provenance, write_json
+    from tasks import UnknownPresetError, make_task
+
+    _validate_names(task=args.task)
+    for name in args.backends:
+        _validate_names(backend=name)
+    if len(set(args.backends)) < 2:
+        raise BadInput(f"parity compares two different backends, got {' '.join(args.backends)}")
+    if args.out:
+        _check_output_file(args.out)
+    try:
+        make_task(args.task, preset=args.preset)
+    except UnknownPresetError as exc:
+        raise BadInput(str(exc)) from None
+    try:
+        result = parity(
+            args.task,
+            args.backends,
+            preset=args.preset,
+            num_envs=args.num_envs,
+            seeds=args.episode_seeds,
+            steps=args.steps,
+            max_steps=args.max_steps,
+            seed=args.seed,
+            progress=lambda line: print(line, flush=True),
+        )
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
+    text = table(result)
+    print(text)
+    print(f"targets {'all hold' if result['passed'] else 'not all hold'}: {result['holds']}")
+    if args.out:
+        out = Path(args.out)
+        stem = out.with_suffix("") if out.suffix == ".json" else out
+        print(
+            f"wrote {write_json(stem.with_suffix('.json'), {'result': result, 'provenance': provenance(_command())})}"
+        )
+        print(f"wrote {atomic_write_text(stem.with_suffix('.md'), text)}")
+        print(f"wrote {plot(result, stem.with_suffix('.png'))}")
+    return 0
+
+
 def cmd_crosscheck(args) -> int:
     import json
 
@@ -916,6 +1003,7 @@ VERBS = {
     "sweep": cmd_sweep,
     "grad-growth": cmd_grad_growth,
     "crosscheck": cmd_crosscheck,
+    "parity": cmd_parity,
     "solver-probe": cmd_solver_probe,
     "bench": cmd_bench,
     "bench-run": cmd_bench_run,

@@ -9,7 +9,7 @@ only :mod:`simcore`.
 from __future__ import annotations
 
 from simcore import PhysicsSpec, PluginRegistry, UnknownNameError
-from tasks.base import Task
+from tasks.base import PhysicsPreset, Task, UnknownPresetError
 
 ENTRY_POINT_GROUP = "diffsim_bench.tasks"
 REGISTRY = PluginRegistry(ENTRY_POINT_GROUP, Task, "task")
@@ -19,8 +19,19 @@ available = REGISTRY.available
 task_class = REGISTRY.get
 
 
-def make_task(name: str, physics: PhysicsSpec | None = None) -> Task:
-    return task_class(name)(physics)
+def make_task(name: str, physics: PhysicsSpec | None = None, preset: str | None = None) -> Task:
+    """Task ``name`` with its ``preset`` (the task's default when ``None``), or explicit ``physics``."""
+    cls = task_class(name)
+    return cls(physics, preset) if preset else cls(physics)
 
 
-__all__ = ["PhysicsSpec", "Task", "UnknownTaskError", "available", "make_task", "task_class"]
+__all__ = [
+    "PhysicsPreset",
+    "PhysicsSpec",
+    "Task",
+    "UnknownPresetError",
+    "UnknownTaskError",
+    "available",
+    "make_task",
+    "task_class",
+]

@@ -9,7 +9,10 @@ and the physics spec; they never see observations or rewards.
 
 from __future__ import annotations
 
+import dataclasses
 from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
@@ -19,8 +22,28 @@ from simcore import ControlKind, PhysicsSpec, SimState, SoftBodySpec, StateLayou
 ASSET_DIR = Path(__file__).resolve().parent / "assets"
 
 
+class UnknownPresetError(ValueError):
+    """A physics preset the task does not define; the message lists the ones it does."""
+
+
+@dataclass(frozen=True)
+class PhysicsPreset:
+    """A named physical setup of a task: its constants, the engine settings it was validated with
+    (``simcore.TaskSpec.backend_options``), and the asset when it is not the task's own."""
+
+    physics: PhysicsSpec
+    backend_options: Mapping[str, Mapping[str, object]] = field(default_factory=dict)
+    asset_path: Path | None = None
+    about: str = ""  # one line: where the constants come from
+
+
 class Task(ABC):
-    """A backend-neutral task definition. Subclasses set the class attributes below."""
+    """A backend-neutral task definition. Subclasses set the class attributes below.
+
+    A task with ``presets`` is built from one of them by name (``default_preset`` when none is
+    given); explicit ``physics`` replaces the preset's constants and keeps its engine settings and
+    asset, and the task then reports its preset as ``NAME+custom`` (:attr:`preset_label`).
+    """
 
     name: str = ""
     asset_path: Path
@@ -34,9 +57,37 @@ class Task(ABC):
     airborne_height: float = 2.0
     backend_options: dict[str, dict[str, object]] = {}  # see simcore.TaskSpec.backend_options
     soft_body: SoftBodySpec | None = None  # TET_ACTIVATION tasks: the soft body (simcore.SoftBodySpec)
+    #: named physical setups (:class:`PhysicsPreset`); none: ``physics`` or ``PhysicsSpec()`` as given
+    presets: Mapping[str, PhysicsPreset] = {}
+    default_preset: str = ""
 
-    def __init__(self, physics: PhysicsSpec | None = None):
-        self.physics = physics or PhysicsSpec()
+    def __init__(self, physics: PhysicsSpec | None = None, preset: str | None = None):
+        self.preset = preset or self.default_preset
+        if not self.presets:
+            if preset:
+                raise UnknownPresetError(f"task {self.name!r} has no physics presets; got {preset!r}")
+            self.physics = physics or PhysicsSpec()
+            self.preset_label = "custom"
+            return
+        if self.preset not in self.presets:
+            raise UnknownPresetError(
+                f"task {self.name!r} has no physics preset {self.preset!r}; choose from: {', '.join(self.presets)}"
+            )
+        chosen = self.presets[self.preset]
+        self.physics = physics or chosen.physics
+        self.backend_options = {name: dict(values) for name, values in chosen.backend_options.items()}
+        if chosen.asset_path is not None:
+            self.asset_path = chosen.asset_path
+        self.preset_label = self.preset if self.physics == chosen.physics else f"{self.preset}+custom"
+
+    def physics_record(self) -> dict:
+        """What a result file says about the physics it rests on: preset, constants, engine settings."""
+        return {
+            "preset": self.preset_label,
+            "physics": dataclasses.asdict(self.physics),
+            "backend_options": {name: dict(values) for name, values in self.backend_options.items()},
+            "asset": self.asset_path.name if hasattr(self, "asset_path") else None,
+        }
 
     @abstractmethod
     def sample_initial_state(self, num_envs: int, generator: torch.Generator) -> tuple[torch.Tensor, ...]:
@@ -84,4 +135,13 @@ def random_tilt(quat: torch.Tensor, max_angle: float, generator: torch.Generator
     return quat_mul(quat, quat_from_angle_axis(angle, axis))
 
 
-__all__ = ["ASSET_DIR", "PhysicsSpec", "Task", "floating_base_pose", "random_tilt", "symmetric_uniform"]
+__all__ = [
+    "ASSET_DIR",
+    "PhysicsPreset",
+    "PhysicsSpec",
+    "Task",
+    "UnknownPresetError",
+    "floating_base_pose",
+    "random_tilt",
+    "symmetric_uniform",
+]

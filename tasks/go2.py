@@ -36,7 +36,7 @@ from simcore import (
     quat_rotate,
     up_z,
 )
-from tasks.base import ASSET_DIR, Task, floating_base_pose, random_tilt, symmetric_uniform
+from tasks.base import ASSET_DIR, PhysicsPreset, Task, floating_base_pose, random_tilt, symmetric_uniform
 
 #: the URDF's actuated joints, in the order of the state's dof block (and of the actions)
 JOINT_NAMES = tuple(f"{leg}_{part}_joint" for leg in ("FL", "FR", "RL", "RR") for part in ("hip", "thigh", "calf"))
@@ -71,8 +71,16 @@ class Go2(Task):
     action_dim = 12
     obs_dim = 46
     episode_length = 1000
-    #: Newton's semi-implicit solver goes non-finite on this robot; README "Go2 on Newton" has the probe
-    backend_options = {"newton": {"solver": "featherstone"}}
+    #: one preset, the project's (the paper's Go2 is unpublished); Newton's semi-implicit solver goes
+    #: non-finite on this robot (``python -m harness solver-probe --task go2``), so Featherstone
+    presets = {
+        "project": PhysicsPreset(
+            GO2_PHYSICS,
+            {"newton": {"solver": "featherstone"}},
+            about="the project's URDF and PD gains (module docstring), generalized coordinates",
+        )
+    }
+    default_preset = "project"
 
     # contact-free gradient checks start here: the feet (0.33 m below the trunk) stay 0.2 m clear of the
     # ground for 8 steps of free fall, and the height penalty stays O(1) (at 2 m it is ~30 per step and its
@@ -89,9 +97,6 @@ class Go2(Task):
     # termination: the trunk is down or tipped over
     termination_height = 0.18
     termination_up_z = 0.5  # cos(60 deg)
-
-    def __init__(self, physics: PhysicsSpec | None = None):
-        super().__init__(physics or GO2_PHYSICS)
 
     def default_state(self) -> tuple[torch.Tensor, torch.Tensor]:
         return floating_base_pose(START_HEIGHT, DEFAULT_DOF_Q)

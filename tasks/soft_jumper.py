@@ -31,7 +31,7 @@ import torch
 
 from simcore import ControlKind, PhysicsSpec, SimState, SoftBodySpec, StateLayout
 from tasks import tetmesh
-from tasks.base import Task, symmetric_uniform
+from tasks.base import PhysicsPreset, Task, symmetric_uniform
 
 SOFT_JUMPER_PHYSICS = PhysicsSpec(
     frame_dt=1.0 / 60.0,
@@ -81,8 +81,16 @@ class SoftJumper(Task):
     max_offset = 0.25  # horizontal offset U(-0.25, 0.25) m in x and y
     max_drop = 0.2  # lowest particle U(0, 0.2) m above touching the ground
 
-    def __init__(self, physics: PhysicsSpec | None = None):
-        super().__init__(physics or SOFT_JUMPER_PHYSICS)
+    presets = {
+        "rewarped": PhysicsPreset(
+            SOFT_JUMPER_PHYSICS,
+            about="Rewarped's Jumper material, contact constants and 80 substeps (module docstring)",
+        )
+    }
+    default_preset = "rewarped"
+
+    def __init__(self, physics: PhysicsSpec | None = None, preset: str | None = None):
+        super().__init__(physics, preset)
         body = self.soft_body
         masses = body.particle_masses()
         self._com_weights = (masses / masses.sum()).float()  # the same at every scale

@@ -18,12 +18,13 @@ and the plane; joint damping ``physics.joint_damping`` on the hinges; armature `
 (or the asset's when ``None``) and ranges from the asset. Self-collisions are off
 (``contype``/``conaffinity``), as in the Newton adapter: only geom-ground contacts exist.
 
-Contact models differ between engines. MuJoCo's contacts and joint limits are soft *constraints*
-solved each step, with a pyramidal friction cone; Newton's are penalty springs. The task's penalty
-constants (``contact_ke/kd/kf``, ``joint_limit_ke/kd``) have no MuJoCo counterpart and are not used
-here. ``solref`` keeps MuJoCo's default (0.02 s, 1): a critically damped response with a 20 ms
-time constant, ~19 substeps, comfortably resolved by the integrator (MuJoCo asks for at least 2
-timesteps). MuJoCo also honours the armature (0.05), which Newton's semi-implicit solver ignores.
+Contacts and joint limits: MuJoCo's are soft constraints, Newton's (and the task's) penalty springs.
+:mod:`backends.mujoco_warp.penalty` converts the task's ``contact_ke/kd/kf`` and ``joint_limit_ke/kd``
+into direct-form ``solref``/``solreflimit`` with a constant impedance and an elliptic friction cone
+with ``impratio = kf / kd``, so that at rest and in steady sliding MuJoCo's forces are the penalty
+law's (``python -m harness parity`` measures it: probe penetration and limit deflection agree to
+0.1%); :meth:`MujocoWarpSim.physics_mapping` lists every field's mapping. MuJoCo also honours the
+armature, which Newton's semi-implicit solver cannot (that solver refuses a non-zero one).
 
 Engine state (N, D), D = nq + nv = 29 for the Ant (37 for the Go2; a fixed base has hinges only):
 MuJoCo's ``qpos`` (root position, root quaternion w-x-y-z, hinges) and ``qvel`` (root linear
@@ -116,7 +117,8 @@ import torch
 import warp as wp
 
 from backends._warp import option_flag, warp_device
-from backends.contract import BackendError, BatchedSim
+from backends.contract import BackendError, BatchedSim, inert_by_definition
+from backends.mujoco_warp.penalty import IMPEDANCE, apply_penalty_constants
 from backends.mujoco_warp.soft import SoftEnvModels
 from backends.mujoco_warp.stepping import SubstepReplay, run_substeps
 from simcore import (
@@ -171,6 +173,7 @@ def build_spec(task) -> mujoco.MjSpec:
     for geom in spec.geoms:
         geom.friction[0] = phys.contact_mu
         geom.contype, geom.conaffinity = 1, 0  # collide with the ground only, never with each other
+        geom.priority = 1  # a robot geom's contact parameters win over the plane's (mujoco_warp.penalty)
     for joint in spec.joints:
         if joint.type == mujoco.mjtJoint.mjJNT_HINGE:
             joint.damping[0] = phys.joint_damping
@@ -185,6 +188,7 @@ def build_spec(task) -> mujoco.MjSpec:
             contype=0,
             conaffinity=1,
         )
+    apply_penalty_constants(spec, phys)
     return spec
 
 
@@ -295,6 +299,49 @@ class MujocoWarpSim(BatchedSim):
         dofs = 3 * layout.num_particles
         eps = [self.fd_eps_state] * (2 * dofs) + [self.fd_eps_control] * layout.num_tets
         self._fd_steps = torch.tensor(eps, dtype=torch.float64, device=self.device)
+
+    @property
+    def integrator(self) -> str:
+        return "mujoco_warp Euler (soft constraints, elliptic cone)"
+
+    def physics_mapping(self) -> dict[str, str]:
+        """How each :class:`PhysicsSpec` field reaches MuJoCo (see :meth:`BatchedSim.physics_mapping`;
+        the penalty conversion is :mod:`backends.mujoco_warp.penalty`)."""
+        solref = "solref = (-k (1 - d) A, -c (1 - d) A), d = {d} constant impedance, A = body_invweight0 (penalty.py)"
+        mapping = {
+            "frame_dt": "opt.timestep = frame_dt / substeps",
+            "substeps": "mujoco_warp.step calls per control step",
+            "gravity": "opt.gravity = (0, 0, gravity)",
+            "ground_plane": "a z-up plane geom through the origin",
+            "contact_ke": "geom " + solref.format(d=IMPEDANCE).replace("-k", "-ke").replace("-c", "-kd"),
+            "contact_kd": "geom solref[1] as contact_ke's; both ways (Newton damps the approach only)",
+            "contact_kf": "elliptic cone, opt.impratio = kf / kd (friction rows take the normal row's damping); "
+            "kf = 0: condim 1",
+            "contact_mu": "geom friction[0] (sliding) of every geom and the plane",
+        }
+        if self.soft:
+            mapping["contact_ke"] = mapping["contact_ke"].replace(
+                "body_invweight0", "1 / mean vertex mass (one flex solref)"
+            )
+        else:
+            mapping.update(
+                {
+                    "joint_limit_ke": "jnt "
+                    + solref.format(d=IMPEDANCE)
+                    .replace("body_invweight0", "dof_invweight0")
+                    .replace("solref", "solreflimit")
+                    .replace("-k", "-ke")
+                    .replace("-c", "-kd"),
+                    "joint_limit_kd": "jnt solreflimit[1] as joint_limit_ke's",
+                    "joint_damping": "dof_damping of every hinge (MuJoCo integrates it implicitly)",
+                    "armature": "dof_armature of every hinge (the asset's when None)",
+                    "pd_kp": "qfrc_applied before every substep from the substep's state (PhysicsSpec.pd_torque)",
+                    "pd_kd": "as pd_kp",
+                    "torque_limits": "as pd_kp (the clip of PhysicsSpec.pd_torque)",
+                }
+            )
+        mapping.update(inert_by_definition(self.task))
+        return mapping
 
     def _read_fd_scheme(self, default: str) -> None:
         self.fd_scheme = str(self.options.get("fd_scheme", default))

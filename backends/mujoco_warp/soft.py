@@ -11,11 +11,10 @@ Model (:func:`build_soft_spec`, one per env, because each env's body has its own
   damping ``k_damp / E`` (MuJoCo's flex damping is stiffness-proportional, in seconds; Newton's
   ``k_damp`` is a viscosity in Pa s: the ratio gives the same damping stress for the same strain
   rate in the linear regime);
-* ground contact as MuJoCo allows it: vertex spheres of the particle radius against the plane,
-  friction ``contact_mu`` (pyramidal cone), and a soft-constraint time constant
-  ``1 / sqrt(ke / m)`` for a vertex of average mass ``m`` (4.2 ms for ke = 2e3: the penalty spring's
-  stiffness) with damping ratio 1; Newton's penalty (kd = 0.1, nearly undamped; kf = 10 regularised
-  Coulomb) has no exact MuJoCo counterpart.
+* ground contact: vertex spheres of the particle radius against the plane, the task's penalty
+  constants converted as for rigid bodies (:mod:`backends.mujoco_warp.penalty`: direct-form solref,
+  constant impedance, elliptic cone with ``impratio = kf / kd``), with the mean vertex mass standing
+  in for each vertex's, since a flex has one solref.
 
 Activations: MuJoCo has no per-element activation, so Newton's activation term (the ``a`` in its
 volume force ``k_lambda V (J - alpha + a) dJ/dx``) is applied as the equivalent nodal forces
@@ -25,13 +24,13 @@ written to ``qfrc_applied`` before **every substep**, as Newton's FEM re-evaluat
 
 from __future__ import annotations
 
-import math
-
 import mujoco
 import mujoco_warp as mjw
 import torch
 import warp as wp
 
+from backends.contract import BackendError
+from backends.mujoco_warp.penalty import constant_solimp, penalty_solref
 from backends.mujoco_warp.stepping import SubstepReplay, run_substeps
 from simcore import SoftBodySpec, activation_nodal_forces
 
@@ -78,8 +77,17 @@ def build_soft_spec(task, scale: float) -> mujoco.MjSpec:
     flex.damping = body.k_damp / young
     flex.friction = [phys.contact_mu, 0.005, 0.0001]
     flex.selfcollide = mujoco.mjtFlexSelf.mjFLEXSELF_NONE
+    # the penalty conversion of backends/mujoco_warp/penalty.py; a flex has one solref for all its
+    # vertices, so A is the inverse of the mean vertex mass
     mean_mass = sum(masses) / len(masses)
-    flex.solref = [1.0 / math.sqrt(phys.contact_ke / mean_mass), 1.0]
+    flex.solref = penalty_solref(phys.contact_ke, phys.contact_kd, 1.0 / mean_mass)
+    flex.solimp = constant_solimp()
+    flex.condim = 1 if phys.contact_kf <= 0 or phys.contact_mu <= 0 else 3
+    spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
+    if flex.condim == 3:
+        if phys.contact_kd <= 0:
+            raise BackendError("PhysicsSpec.contact_kf > 0 needs contact_kd > 0 on mujoco_warp (impratio = kf / kd)")
+        spec.option.impratio = phys.contact_kf / phys.contact_kd
     return spec
 
 

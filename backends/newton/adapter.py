@@ -1,10 +1,11 @@
 """Newton adapter: exact gradients from ``wp.Tape`` wrapped in ``torch.autograd.Function``.
 
 Solvers (option ``solver``): :class:`newton.solvers.SolverSemiImplicit` by default (symplectic Euler
-in maximal coordinates with penalty joints and penalty contacts; README "Newton solver choice": on the
-Ant its gradients are finite and match finite differences), or :class:`newton.solvers.SolverFeatherstone`
-(generalized coordinates; the Go2 selects it through its ``backend_options``, because the
-semi-implicit solver goes non-finite on it in the first step: README "Go2 on Newton"). Soft bodies
+in maximal coordinates with penalty joints and penalty contacts; it has no rotor inertia, so a
+non-zero armature is refused), or :class:`newton.solvers.SolverFeatherstone` (generalized
+coordinates, what MuJoCo integrates; the Ant's and the Go2's physics presets select it through their
+``backend_options``: the semi-implicit solver's joints stretch under the Ant's weight, and it goes
+non-finite on the Go2 in the first step). Soft bodies
 (``TET_ACTIVATION`` tasks, the SoftJumper) are particles and Neo-Hookean tets on the semi-implicit
 solver, one body per env scaled to the env's size (``SoftBodySpec``), activations written to
 ``control.tet_activations``; particle-particle contact is off.
@@ -55,7 +56,7 @@ import torch
 import warp as wp
 
 from backends._warp import option_flag, warp_device
-from backends.contract import BackendError, BatchedSim
+from backends.contract import BackendError, BatchedSim, inert_by_definition
 from simcore import ControlKind, SimState, StateLayout
 
 _POSE = 7  # wp.transform: position (3) + quaternion xyzw (4)
@@ -139,6 +140,8 @@ class NewtonSim(BatchedSim):
         self.featherstone = solver == "featherstone"
         self.position_control = task.control_kind == ControlKind.JOINT_POSITION_TARGET
         self.soft = task.control_kind == ControlKind.TET_ACTIVATION
+        if self.soft:
+            self.checked_soft_body()  # a task without a soft body hears that first, whatever the solver
         if self.soft and self.featherstone:
             raise BackendError("soft bodies run on the semi_implicit solver (featherstone has no FEM)")
         self.wp_device = warp_device(self.device)
@@ -168,6 +171,7 @@ class NewtonSim(BatchedSim):
             self._apply_soft_physics(model)
         else:
             self._apply_physics(model)
+            self._refuse_unrepresentable_armature(model)
         self.model = model
         if self.featherstone:
             self.mass_matrix_every = int(self.options.get("mass_matrix_every", phys.substeps))
@@ -292,6 +296,50 @@ class NewtonSim(BatchedSim):
         # which clips to the torque limits as the task's law says; Newton's drive would not)
         model.joint_target_ke.assign(per_dof(0.0))
         model.joint_target_kd.assign(per_dof(0.0))
+
+    def _refuse_unrepresentable_armature(self, model: newton.Model) -> None:
+        """The semi-implicit solver integrates bodies in maximal coordinates and has no rotor inertia:
+        a spec (or, with ``armature=None``, an asset) that asks for one is refused, not ignored."""
+        if self.featherstone:
+            return
+        nv = self.task.layout.nv
+        armature = model.joint_armature.numpy().reshape(self.num_envs, nv)[:, nv - self.task.layout.num_dofs :]
+        if armature.size and float(np.abs(armature).max()) > 0.0:
+            source = "the asset's" if self.task.physics.armature is None else "the spec's"
+            raise BackendError(
+                f"PhysicsSpec.armature: newton's semi_implicit solver has no rotor inertia, and {source} is "
+                f"{float(np.abs(armature).max()):g} kg m^2; use solver=featherstone or a spec with armature=0"
+            )
+
+    @property
+    def integrator(self) -> str:
+        return f"newton {type(self.solver).__name__}"
+
+    def physics_mapping(self) -> dict[str, str]:
+        """How each :class:`PhysicsSpec` field reaches Newton (see :meth:`BatchedSim.physics_mapping`)."""
+        mapping = {
+            "frame_dt": "one control step = substeps solver steps of frame_dt / substeps",
+            "substeps": "solver.step calls per control step",
+            "gravity": "ModelBuilder(gravity=(0, 0, gravity))",
+            "ground_plane": "ModelBuilder.add_ground_plane (z-up, through the origin)",
+        }
+        if self.soft:
+            contact = "model.soft_contact_{name} (particle-ground penalty contact), as given"
+        else:
+            contact = "ShapeConfig.{name} of every shape and of the ground (the pair's mean is the value), as given"
+        for name in ("ke", "kd", "kf", "mu"):
+            mapping[f"contact_{name}"] = contact.format(name=name)
+        mapping["joint_limit_ke"] = "model.joint_limit_ke on every articulated dof, as given (N m / rad)"
+        mapping["joint_limit_kd"] = "model.joint_limit_kd on every articulated dof, as given (N m s / rad)"
+        mapping["joint_damping"] = "model.joint_damping on every articulated dof, as given (N m s / rad)"
+        if self.featherstone:
+            mapping["armature"] = "model.joint_armature on every articulated dof (the asset's when None)"
+        else:
+            mapping["armature"] = "zero only (the semi-implicit solver has none); anything else is refused"
+        for name in ("pd_kp", "pd_kd", "torque_limits"):
+            mapping[name] = "the PD kernel on the tape, every substep (PhysicsSpec.pd_torque)"
+        mapping.update(inert_by_definition(self.task))
+        return mapping
 
     @property
     def layout(self) -> StateLayout:

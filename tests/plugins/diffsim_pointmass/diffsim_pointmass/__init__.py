@@ -5,6 +5,9 @@ Euler in plain torch, so autograd gives exact gradients:
 
     v' = v + dt * (u / m - c * v),    x' = x + dt * v'
 
+with the drag ``c`` the task's ``PhysicsSpec.joint_damping`` per unit mass. A spec with a ground
+plane or an armature is refused: this engine has neither.
+
 State layout: no floating base, two slide dofs (x, y): joint_q = position, joint_qd = velocity.
 """
 
@@ -12,7 +15,7 @@ from __future__ import annotations
 
 import torch
 
-from backends.contract import BackendError, BatchedSim
+from backends.contract import BackendError, BatchedSim, inert_by_definition
 from simcore import ControlKind, PhysicsSpec, SimState, StateLayout
 from tasks.base import Task
 
@@ -30,7 +33,7 @@ class PointMassTask(Task):
     max_force = 10.0
 
     def __init__(self, physics: PhysicsSpec | None = None):
-        super().__init__(physics or PhysicsSpec(frame_dt=0.05, substeps=4, ground_plane=False))
+        super().__init__(physics or PhysicsSpec(frame_dt=0.05, substeps=4, ground_plane=False, joint_damping=0.5))
 
     def sample_initial_state(self, num_envs, generator):
         q = 2.0 * torch.rand(num_envs, 2, generator=generator) - 1.0
@@ -56,11 +59,29 @@ class PointMassSim(BatchedSim):
     name = "pointmass"
     contract_tasks = ("pointmass",)
     mass = 1.0
-    drag = 0.5
 
     def _build(self) -> None:
         if not isinstance(self.task, PointMassTask):
             raise BackendError(f"the pointmass backend simulates only the pointmass task, not {self.task.name!r}")
+        phys = self.task.physics
+        if phys.ground_plane:
+            raise BackendError("PhysicsSpec.ground_plane: the pointmass backend has no ground to contact")
+        if phys.armature:
+            raise BackendError("PhysicsSpec.armature: the pointmass backend has no rotor inertia")
+
+    def physics_mapping(self) -> dict[str, str]:
+        mapping = {
+            "frame_dt": "substeps Euler steps of frame_dt / substeps",
+            "substeps": "Euler steps per control step",
+            "gravity": "inert: gravity acts along z, the point moves in the x-y plane",
+            "ground_plane": "False only (refused otherwise)",
+            "joint_limit_ke": "inert: the point has no joint limits",
+            "joint_limit_kd": "inert: the point has no joint limits",
+            "joint_damping": "the linear drag c = joint_damping / mass",
+            "armature": "None or 0 only (refused otherwise)",
+        }
+        mapping.update(inert_by_definition(self.task))
+        return mapping
 
     @property
     def layout(self) -> StateLayout:
@@ -79,7 +100,8 @@ class PointMassSim(BatchedSim):
         control = self.engine_control(control)
         x, v = state.engine[:, :2], state.engine[:, 2:]
         dt = self.task.physics.sim_dt
+        drag = self.task.physics.joint_damping / self.mass
         for _ in range(self.task.physics.substeps):
-            v = v + dt * (control / self.mass - self.drag * v)
+            v = v + dt * (control / self.mass - drag * v)
             x = x + dt * v
         return SimState(joint_q=x, joint_qd=v, engine=torch.cat((x, v), dim=-1))
