@@ -159,6 +159,8 @@ class RunSpec:
         """What the run's directory is addressed by: the fields of its config.json that make the result."""
         cfg = self.algo_config()
         cfg = cfg.replace(max_epochs=cfg.max_epochs or self.epochs)  # as train() records it
+        from tasks import make_task
+
         return {
             "task": self.task,
             "backend": self.backend,
@@ -166,6 +168,8 @@ class RunSpec:
             "device": self.device,
             "epochs": self.epochs,
             "algo": cfg.as_dict(),
+            # the physics the run rests on (preset, constants, engine settings): a changed default is a new run
+            "physics": json.loads(json.dumps(make_task(self.task).physics_record())),
         }
 
     @property
@@ -679,6 +683,7 @@ def _train_and_evaluate(run_dir: Path, job: dict, stream) -> None:
         config = read_config(run_dir)
         recorded = {k: config[k] for k in ("task", "backend", "seed", "device", "epochs")}
         recorded["algo"] = config["algo_config"].as_dict()
+        recorded["physics"] = config.get("physics_record")
         if _hash(recorded) != job["key"]:
             raise RunError(f"{run_dir}: config.json does not match the planned run (job.json): move the folder away")
         if not _training_complete(run_dir, job["epochs"]):

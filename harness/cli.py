@@ -246,7 +246,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("train", help="train an algorithm; writes config.json, metrics.jsonl, checkpoints")
     _add(p, "train", "backend", "task", "algo", "num_envs", "horizon", "device", "seed", "epochs", "out")
-    _add(p, "train", "checkpoint_every")
+    _add(p, "train", "checkpoint_every", "preset")
     p.add_argument("--resume", metavar="DIR", help="continue the interrupted run in DIR (only --epochs may change)")
     _hyperparameter_flags(p)
 
@@ -446,6 +446,16 @@ def _make_sim(args, horizon: int):
         raise BadInput(f"cannot build {args.backend}/{args.task} on {args.device}: {exc}") from exc
 
 
+def _check_preset(task: str, preset: str | None) -> None:
+    """Refuse a physics preset the task does not define, in one line naming the ones it does."""
+    from tasks import UnknownPresetError, make_task
+
+    try:
+        make_task(task, preset=preset)
+    except UnknownPresetError as exc:
+        raise BadInput(str(exc)) from None
+
+
 def _check_output_file(out: str) -> None:
     """A result file (or prefix) we may write: not empty, not a directory, in a writable place."""
     from pathlib import Path
@@ -625,6 +635,7 @@ def cmd_train(args) -> int:
         raise BadInput("train needs " + ", ".join("--" + m.replace("_", "-") for m in missing) + " (or --resume DIR)")
     _validate_names(args.backend, args.task)
     _check_device(args.device)
+    _check_preset(args.task, args.preset)
     cfg = _algo_config(args, args.algo)
     train(
         args.out,
@@ -636,6 +647,7 @@ def cmd_train(args) -> int:
         device=args.device,
         checkpoint_every=args.checkpoint_every,
         command=_command(),
+        preset=args.preset,
     )
     return 0
 
@@ -832,7 +844,6 @@ def cmd_parity(args) -> int:
 
     from harness.parity import parity, plot, table
     from harness.results import atomic_write_text, provenance, write_json
-    from tasks import UnknownPresetError, make_task
 
     _validate_names(task=args.task)
     for name in args.backends:
@@ -841,10 +852,7 @@ def cmd_parity(args) -> int:
         raise BadInput(f"parity compares two different backends, got {' '.join(args.backends)}")
     if args.out:
         _check_output_file(args.out)
-    try:
-        make_task(args.task, preset=args.preset)
-    except UnknownPresetError as exc:
-        raise BadInput(str(exc)) from None
+    _check_preset(args.task, args.preset)
     try:
         result = parity(
             args.task,

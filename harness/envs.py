@@ -15,7 +15,7 @@ def make_sim(backend: str, task, num_envs: int, device: str = "cpu", seed: int =
 
 
 def make_env(
-    task_name: str,
+    task,
     backend: str,
     num_envs: int,
     device: str = "cpu",
@@ -23,5 +23,32 @@ def make_env(
     horizon: int = 32,
     physics: PhysicsSpec | None = None,
 ) -> TaskEnv:
-    task = make_task(task_name, physics)
+    """An env of ``task`` (a :class:`tasks.Task`, or a task name with optional ``physics``)."""
+    if isinstance(task, str):
+        task = make_task(task, physics)
     return TaskEnv(task, make_sim(backend, task, num_envs, device, seed, horizon))
+
+
+def physics_fields(recorded: dict) -> dict:
+    """A run's recorded physics constants, as PhysicsSpec fields (lists back to tuples; old names mapped)."""
+    renamed = {"pd_ke": "pd_kp"}
+    return {renamed.get(k, k): tuple(v) if isinstance(v, list) else v for k, v in recorded.items()}
+
+
+def run_task(config: dict, physics: PhysicsSpec | None = None):
+    """The task a run was made with, from its config.json: the recorded preset (engine settings and
+    asset) and constants, or ``physics`` instead of the constants. A run from before physics presets
+    recorded no engine settings and is refused in one line rather than rebuilt on today's defaults."""
+    from harness.results import RunError
+    from tasks import task_class
+
+    record = config.get("physics_record")
+    if not record:
+        raise RunError(
+            f"the {config.get('task')!r} run predates physics presets: its engine settings are not recorded, "
+            "and today's defaults may differ; train it again"
+        )
+    has_presets = bool(getattr(task_class(config["task"]), "presets", {}))
+    preset = record["preset"].split("+")[0] if has_presets else None
+    physics = physics or PhysicsSpec(**physics_fields(config["physics"]))
+    return make_task(config["task"], physics, preset=preset)

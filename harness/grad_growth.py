@@ -41,25 +41,18 @@ def parse_variant(text: str) -> dict:
     return changes
 
 
-def _physics_fields(recorded: dict) -> dict:
-    """A run's recorded physics constants, as PhysicsSpec fields (lists back to tuples; old names mapped)."""
-    renamed = {"pd_ke": "pd_kp"}
-    return {renamed.get(k, k): tuple(v) if isinstance(v, list) else v for k, v in recorded.items()}
-
-
 def grad_growth(run: str | Path, variants: list[str], windows: int = 3, seed: int = 0) -> dict:
-    from harness.envs import make_env, make_sim
-    from simcore import PhysicsSpec
-    from tasks import make_task
+    from harness.envs import make_env, make_sim, run_task
     from tasks.rollout import rollout_reward
 
     run = Path(run)
     config = json.loads((run / "config.json").read_text())
     algo_cfg = AlgoConfig.from_dict(config["algo"])
     n, h = algo_cfg.num_envs, algo_cfg.horizon
-    physics = PhysicsSpec(**_physics_fields(config.get("physics", {})))
+    task = run_task(config)
+    physics = task.physics
     torch.manual_seed(seed)
-    env = make_env(config["task"], config["backend"], n, seed=seed, horizon=h, physics=physics)
+    env = make_env(task, config["backend"], n, seed=seed, horizon=h)
     algo = FirstOrderActorCritic(algo_cfg, env.obs_dim, env.action_dim)
     load_checkpoint(run / CHECKPOINT, algo, env)
     recorded = []
@@ -74,7 +67,7 @@ def grad_growth(run: str | Path, variants: list[str], windows: int = 3, seed: in
 
     out = {"run": str(run), "windows": windows, "num_envs": n, "horizon": h, "variants": []}
     for text in variants:
-        variant_task = make_task(config["task"], dataclasses.replace(physics, **parse_variant(text)))
+        variant_task = run_task(config, dataclasses.replace(physics, **parse_variant(text)))
         sim = make_sim(config["backend"], variant_task, n, seed=seed, horizon=h)
         norms = []
         for start, actions in recorded:

@@ -39,7 +39,7 @@ from torch import Tensor, nn
 
 from algorithms.actor_critic import FirstOrderActorCritic
 from algorithms.returns import actor_loss_from_returns, h_step_returns, segment_starts, td_lambda_returns
-from harness.envs import make_env
+from harness.envs import make_env, run_task
 from harness.results import RunError, provenance, write_json
 from harness.train import CHECKPOINT, load_checkpoint, read_config
 
@@ -118,16 +118,6 @@ def roughness(surface: np.ndarray) -> float:
 
 
 # -- evaluation --------------------------------------------------------------------------------
-def _physics(config: dict):
-    """The physics constants the run trained with (older runs without them: the task's defaults)."""
-    if not config.get("physics"):
-        return None
-    from harness.grad_growth import _physics_fields
-    from simcore import PhysicsSpec
-
-    return PhysicsSpec(**_physics_fields(config["physics"]))
-
-
 class _Probe:
     """One trained policy, one env at a fixed start state, one seeded noise stream: losses at any theta."""
 
@@ -222,7 +212,7 @@ def compute_landscape(
 
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(seed)
-        env = make_env(config["task"], config["backend"], n, config["device"], seed, cfg.horizon, _physics(config))
+        env = make_env(run_task(config), config["backend"], n, config["device"], seed, cfg.horizon)
         algo = FirstOrderActorCritic(cfg, env.obs_dim, env.action_dim)
         load_checkpoint(run_dir / checkpoint, algo)  # weights and statistics only: the env is our own
         env.reset()

@@ -37,7 +37,7 @@ import torch
 
 from algorithms.actor_critic import FirstOrderActorCritic
 from algorithms.config import AlgoConfig
-from harness.envs import make_env
+from harness.envs import make_env, run_task
 from harness.results import (
     RunError,
     RunStopped,
@@ -255,8 +255,10 @@ def train(
     checkpoint_every: int = 1,
     command: str | None = None,
     stream=sys.stdout,
+    preset: str | None = None,
 ) -> Path:
-    """Start a new run in ``run_dir`` (which must not hold one) and train it for ``epochs`` epochs."""
+    """Start a new run in ``run_dir`` (which must not hold one) and train it for ``epochs`` epochs on the
+    task's physics ``preset`` (its default when ``None``)."""
     run_dir = check_output_dir(run_dir)
     algo_config = algo_config.replace(max_epochs=algo_config.max_epochs or epochs)
     config = {
@@ -266,6 +268,7 @@ def train(
         "device": device,
         "epochs": epochs,
         "algo": algo_config.as_dict(),
+        "preset": preset,
         "provenance": provenance(command),
     }
     return _run(run_dir, config, algo_config, checkpoint_every=checkpoint_every, stream=stream)
@@ -322,11 +325,21 @@ def _run(
 
     task, backend, seed, device, epochs = (config[k] for k in ("task", "backend", "seed", "device", "epochs"))
     config_path, metrics_path, ckpt_path = run_dir / CONFIG, run_dir / METRICS, run_dir / CHECKPOINT
-    config.setdefault("physics", dataclasses.asdict(make_task(task).physics))
+    task_spec = make_task(task, preset=config.get("preset"))
+    config.setdefault("physics", dataclasses.asdict(task_spec.physics))
+    current = json.loads(json.dumps(task_spec.physics_record()))  # as config.json holds it
+    if source is not None and config.get("physics_record") != current:
+        made = (config.get("physics_record") or {}).get("preset", "a physics from before physics presets")
+        raise RunError(
+            f"{run_dir} was made with {made}, task {task!r} now runs preset {current['preset']} "
+            f"({current['backend_options'] or 'no engine settings'}): continuing would change the physics "
+            "mid-run; start a new run"
+        )
+    config["physics_record"] = current
     write_json(config_path, config)  # first, before anything slow: from here on the folder is resumable
     torch.manual_seed(seed)
     random.seed(seed)
-    env = make_env(task, backend, algo_config.num_envs, device, seed, algo_config.horizon)
+    env = make_env(task_spec, backend, algo_config.num_envs, device, seed, algo_config.horizon)
     algo = FirstOrderActorCritic(algo_config, env.obs_dim, env.action_dim)
     progress = {"env_steps": 0, "wall_s": 0.0, "recent_returns": [], "nonfinite_events": 0}
     if source is None:
@@ -427,7 +440,7 @@ def evaluate(
         for i in range(seeds):
             eval_seed = 10_000 + i  # disjoint from training seeds
             torch.manual_seed(eval_seed)
-            env = make_env(config["task"], backend, n, config["device"], eval_seed, cfg.horizon)
+            env = make_env(run_task(config), backend, n, config["device"], eval_seed, cfg.horizon)
             algo = FirstOrderActorCritic(cfg, env.obs_dim, env.action_dim)
             load_checkpoint(run_dir / name, algo)
             obs = env.reset()
