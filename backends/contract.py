@@ -15,12 +15,11 @@ What an adapter writes (the abstract part, engine-specific):
   (root pose and velocity, joint positions and velocities, optional particles), differentiable.
 * :meth:`BatchedSim.simulate` - ``(state, control) -> next state`` for one control step,
   differentiable through torch autograd w.r.t. the incoming state and the control.
-
 * :meth:`BatchedSim.physics_mapping` - how the adapter applies every field of the task's
   :class:`simcore.PhysicsSpec` (engine parameter and conversion), or why a field cannot act on this
   task. The base class refuses, at build time and in one line naming the field, an adapter that
   leaves a field unaccounted for; a field the adapter cannot honour for this task is refused by the
-  adapter itself (a :class:`BackendError` naming it). ``tests/test_contract.py`` perturbs every field
+  adapter itself (a :class:`BackendError` naming it). ``tests/test_physics_mapping.py`` perturbs every field
   and checks that what the mapping says acts does change the simulation, and what it calls inert
   does not.
 
