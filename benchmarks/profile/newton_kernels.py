@@ -13,7 +13,6 @@ path; the per-kernel table says both how long and how many times.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from collections import defaultdict
@@ -61,15 +60,25 @@ def main() -> None:
     total = time.perf_counter() - start
     context.launch = wp.launch = original
 
-    rows = sorted(({"kernel": k, "seconds": s, "launches": calls[k]} for k, s in seconds.items()),
-                  key=lambda r: -r["seconds"])
-    print(f"{task.name} ({task.preset_label}, {sim.integrator}), {args.num_envs} envs x {args.horizon} steps: "
-          f"{total:.3f} s per eager window, {sum(calls.values())} launches")
+    rows = sorted(
+        ({"kernel": k, "seconds": s, "launches": calls[k]} for k, s in seconds.items()), key=lambda r: -r["seconds"]
+    )
+    print(
+        f"{task.name} ({task.preset_label}, {sim.integrator}), {args.num_envs} envs x {args.horizon} steps: "
+        f"{total:.3f} s per eager window, {sum(calls.values())} launches"
+    )
     for row in rows[:15]:
         print(f"  {row['seconds']:8.3f} s {100 * row['seconds'] / total:5.1f}%  {row['launches']:6d}x  {row['kernel']}")
     if args.out:
-        payload = {"task": task.name, "preset": task.preset_label, "integrator": sim.integrator,
-                   "num_envs": args.num_envs, "horizon": args.horizon, "window_s": total, "kernels": rows}
+        payload = {
+            "task": task.name,
+            "preset": task.preset_label,
+            "integrator": sim.integrator,
+            "num_envs": args.num_envs,
+            "horizon": args.horizon,
+            "window_s": total,
+            "kernels": rows,
+        }
         print(f"wrote {write_json(args.out, {'result': payload, 'provenance': provenance(' '.join(sys.argv))})}")
 
 
