@@ -97,14 +97,16 @@ substep. Finite differences perturb all ``2 * 3P + T`` coordinates additively (3
 for the SoftJumper), env by env, in chunks of ``fd_chunk_worlds``; state step 1e-3 m, activation
 step 1e-2.
 
-Contacts make a control step non-smooth. With MuJoCo's soft contacts, the constraint's damping
-term acts from the first substep in which a geom penetrates, so the next state jumps whenever the
-touchdown moves to another substep: along the approach direction about every ``v * sim_dt``
-(~1 mm at 1 m/s), with jumps of ~0.3 rad/s in joint velocity in our scans. A step of 1e-2 averages
-over several of these jumps (a smoothed, secant gradient); the local derivative between jumps,
-which finite differences of a whole rollout with tiny action steps see, ignores them. The two
-disagree by ~30% on ``gradcheck --with-contact`` (reported, not asserted), and no step size fixes
-that: steps of 1e-3 / 0.1 N m and 1e-4 / 0.01 N m give max errors of 0.27 and 0.86.
+Contacts make a control step non-smooth (measured with MuJoCo's default solref/solimp, before the
+penalty conversion; in-contact gradients are re-validated separately). With MuJoCo's soft contacts,
+the constraint's damping term acts from the first substep in which a geom penetrates, so the next
+state jumps whenever the touchdown moves to another substep: along the approach direction about
+every ``v * sim_dt`` (~1 mm at 1 m/s), with jumps of ~0.3 rad/s in joint velocity in our scans. A
+step of 1e-2 averages over several of these jumps (a smoothed, secant gradient); the local
+derivative between jumps, which finite differences of a whole rollout with tiny action steps see,
+ignores them. The two disagree by ~30% on ``gradcheck --with-contact`` (reported, not asserted), and
+no step size fixes that: steps of 1e-3 / 0.1 N m and 1e-4 / 0.01 N m give max errors of 0.27 and
+0.86.
 """
 
 from __future__ import annotations
