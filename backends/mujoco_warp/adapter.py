@@ -309,31 +309,27 @@ class MujocoWarpSim(BatchedSim):
     def physics_mapping(self) -> dict[str, str]:
         """How each :class:`PhysicsSpec` field reaches MuJoCo (see :meth:`BatchedSim.physics_mapping`;
         the penalty conversion is :mod:`backends.mujoco_warp.penalty`)."""
-        solref = "solref = (-k (1 - d) A, -c (1 - d) A), d = {d} constant impedance, A = body_invweight0 (penalty.py)"
+
+        def penalty(element: str, weight: str) -> str:
+            conversion = f"(-ke (1 - d) A, -kd (1 - d) A), d = {IMPEDANCE} constant impedance"
+            return f"{element} = {conversion}, A = {weight} (penalty.py)"
+
+        contact_weight = "1 / mean vertex mass (one flex solref)" if self.soft else "body_invweight0"
         mapping = {
             "frame_dt": "opt.timestep = frame_dt / substeps",
             "substeps": "mujoco_warp.step calls per control step",
             "gravity": "opt.gravity = (0, 0, gravity)",
             "ground_plane": "a z-up plane geom through the origin",
-            "contact_ke": "geom " + solref.format(d=IMPEDANCE).replace("-k", "-ke").replace("-c", "-kd"),
+            "contact_ke": penalty("geom solref", contact_weight),
             "contact_kd": "geom solref[1] as contact_ke's; both ways (Newton damps the approach only)",
             "contact_kf": "elliptic cone, opt.impratio = kf / kd (friction rows take the normal row's damping); "
             "kf = 0: condim 1",
             "contact_mu": "geom friction[0] (sliding) of every geom and the plane",
         }
-        if self.soft:
-            mapping["contact_ke"] = mapping["contact_ke"].replace(
-                "body_invweight0", "1 / mean vertex mass (one flex solref)"
-            )
-        else:
+        if not self.soft:
             mapping.update(
                 {
-                    "joint_limit_ke": "jnt "
-                    + solref.format(d=IMPEDANCE)
-                    .replace("body_invweight0", "dof_invweight0")
-                    .replace("solref", "solreflimit")
-                    .replace("-k", "-ke")
-                    .replace("-c", "-kd"),
+                    "joint_limit_ke": penalty("jnt solreflimit", "dof_invweight0"),
                     "joint_limit_kd": "jnt solreflimit[1] as joint_limit_ke's",
                     "joint_damping": "dof_damping of every hinge (MuJoCo integrates it implicitly)",
                     "armature": "dof_armature of every hinge (the asset's when None)",

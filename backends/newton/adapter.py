@@ -140,10 +140,6 @@ class NewtonSim(BatchedSim):
         self.featherstone = solver == "featherstone"
         self.position_control = task.control_kind == ControlKind.JOINT_POSITION_TARGET
         self.soft = task.control_kind == ControlKind.TET_ACTIVATION
-        if self.soft:
-            self.checked_soft_body()  # a task without a soft body hears that first, whatever the solver
-        if self.soft and self.featherstone:
-            raise BackendError("soft bodies run on the semi_implicit solver (featherstone has no FEM)")
         self.wp_device = warp_device(self.device)
         self.graph_capture = option_flag(self.options, "graph_capture", self.device.type == "cpu", self.name)
 
@@ -222,7 +218,9 @@ class NewtonSim(BatchedSim):
     def _soft_builder(self) -> newton.ModelBuilder:
         """One soft body per env: the task's tet mesh scaled by the env's size factor, its particles
         carrying a quarter of each incident tet's mass (``SoftBodySpec``), one FEM element per tet."""
-        phys, body = self.task.physics, self.checked_soft_body()
+        phys, body = self.task.physics, self.checked_soft_body()  # a task without one hears that first
+        if self.featherstone:
+            raise BackendError("soft bodies run on the semi_implicit solver (featherstone has no FEM)")
         builder = newton.ModelBuilder(gravity=(0.0, 0.0, phys.gravity))
         masses = body.particle_masses()
         tets = body.tets.tolist()
