@@ -36,7 +36,9 @@ the suite goes on with the others. Ctrl-C stops the running jobs at their next e
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+import functools
 import hashlib
 import json
 import signal
@@ -131,6 +133,21 @@ def load_spec(profile: str | None = None, spec_file: str | None = None) -> tuple
     return data, path
 
 
+def physics_identity(task: str) -> dict:
+    """The physics record (preset, constants, engine settings) of ``task``'s default preset, as a
+    run's config.json holds it: part of every run's and check's address, so a changed default is new work."""
+    import tasks
+
+    return copy.deepcopy(_physics_identity(task, tasks.task_class(task).default_preset))
+
+
+@functools.cache
+def _physics_identity(task: str, preset: str) -> dict:
+    from tasks import make_task
+
+    return json.loads(json.dumps(make_task(task, preset=preset).physics_record()))
+
+
 @dataclasses.dataclass(frozen=True)
 class RunSpec:
     """One training run: everything that determines its result, plus how it is evaluated."""
@@ -159,8 +176,6 @@ class RunSpec:
         """What the run's directory is addressed by: the fields of its config.json that make the result."""
         cfg = self.algo_config()
         cfg = cfg.replace(max_epochs=cfg.max_epochs or self.epochs)  # as train() records it
-        from tasks import make_task
-
         return {
             "task": self.task,
             "backend": self.backend,
@@ -169,7 +184,7 @@ class RunSpec:
             "epochs": self.epochs,
             "algo": cfg.as_dict(),
             # the physics the run rests on (preset, constants, engine settings): a changed default is a new run
-            "physics": json.loads(json.dumps(make_task(self.task).physics_record())),
+            "physics": physics_identity(self.task),
         }
 
     @property
@@ -376,7 +391,7 @@ def plan(data: dict, store: Path) -> list[Job]:
             else:
                 targets = [(b, ["--backend", b, "--task", task]) for b in blist]
             for label_backend, words in targets:
-                key = _hash([kind, *words, *args, device])
+                key = _hash([kind, *words, *args, device, physics_identity(task)])
                 out = store / "checks" / f"{kind}_{task}_{label_backend}_{key}.json"
                 if kind not in MULTI_BACKEND_KINDS:
                     words = [*words, "--device", device]
