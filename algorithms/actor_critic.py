@@ -33,7 +33,7 @@ import torch
 from torch import Tensor, nn
 
 from algorithms.config import AlgoConfig
-from algorithms.grad_variance import gradient_variance
+from algorithms.grad_variance import gradient_statistics
 from algorithms.networks import STYLES, Critic, GaussianActor, SquashedGaussianActor
 from algorithms.normalization import RunningMeanStd
 from algorithms.returns import (
@@ -231,6 +231,18 @@ class FirstOrderActorCritic(nn.Module):
         starts = segment_starts(w.terminated, w.truncated)
         return actor_loss_from_returns(self.actor_returns(w), starts, self.cfg.horizon)
 
+    def reward_weight(self, w: Window) -> float:
+        """The actor loss's effective reward weight: W = -h sum_(t, n) dL/dr(t, n), the total weight its
+        returns put on an env's window of rewards (the mean over envs; L averages them), in units of one
+        return: one segment of the h-step return weighs sum_l gamma^l, of eq. 12's sum_l (gamma lambda)^l.
+        The loss's size, and so the raw gradient variance's, scales with it; the scale-free statistics
+        do not."""
+        rewards = w.rewards.detach().requires_grad_(True)
+        returns = self.actor_returns(w, rewards=rewards, next_values=w.actor_next_values.detach())
+        starts = segment_starts(w.terminated, w.truncated)
+        (grad,) = torch.autograd.grad(actor_loss_from_returns(returns, starts, self.cfg.horizon), rewards)
+        return float(-grad.sum() * self.cfg.horizon)
+
     def group_gradients(self, w: Window) -> Tensor:
         """(K, P) actor gradients of K disjoint env groups, from one backward pass.
 
@@ -351,10 +363,10 @@ class FirstOrderActorCritic(nn.Module):
         start = time.perf_counter()
         norm = nn.utils.clip_grad_norm_(self.actor.parameters(), cfg.actor_grad_clip)
         actor_ok = bool(torch.isfinite(loss)) and _finite(norm, cfg.max_grad_norm_skip)
-        grad_var = float("nan")
+        grad_stats = dict.fromkeys(("grad_var", "grad_nsr", "grad_cosine", "grad_mean_norm"), float("nan"))
         if actor_ok:
             # the group gradients are those of this update: take them before the weights move
-            grad_var = float(gradient_variance(self.group_gradients(w)))
+            grad_stats = gradient_statistics(self.group_gradients(w))
             self.actor_opt.step()
         entropy = self.update_alpha(w) if cfg.soft else float(-w.log_probs.mean())
         lambda_start = time.perf_counter()
@@ -370,7 +382,12 @@ class FirstOrderActorCritic(nn.Module):
         metrics.update(
             actor_loss=float(loss.detach()),
             actor_grad_norm=float(norm),
-            actor_grad_var=grad_var,
+            # raw variance (scales with the loss squared) and the scale-free statistics (grad_variance.py)
+            actor_grad_var=grad_stats["grad_var"],
+            actor_grad_nsr=grad_stats["grad_nsr"],
+            actor_grad_cosine=grad_stats["grad_cosine"],
+            actor_grad_mean_norm=grad_stats["grad_mean_norm"],
+            actor_reward_weight=self.reward_weight(w),
             actor_update_skipped=not actor_ok,
             critic_loss=critic_loss,
             critic_updates_skipped=critic_skipped,

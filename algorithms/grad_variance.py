@@ -27,13 +27,37 @@ tr(Sigma) / m exactly. Two rescalings follow and are provided:
 Always state K and N next to any of the three numbers. The group gradients themselves come
 from one backward pass (``FirstOrderActorCritic.group_gradients``), taken before the optimiser
 step so that they are the gradients of the update.
+
+Scale-free statistics
+---------------------
+Var_K scales with the square of the loss: multiply the loss by c and it grows by c^2, so two losses
+of different size (the h-step return weights the window's rewards by sum gamma^l, the TD-lambda
+return by about sum (gamma lambda)^l) differ in Var_K even at equal noise. Adam, which every
+algorithm here uses, is invariant to that scale, so the statistics that predict training are ratios
+(:func:`gradient_statistics`):
+
+    signal  S = ||g_bar||^2 - Var_K / K     unbiased for ||E g_k||^2, since
+                                            E ||g_bar||^2 = ||E g_k||^2 + tr Cov(g_k) / K
+    noise-to-signal NSR = Var_K / S         per-group noise over signal; +inf when S <= 0 (the K
+                                            groups do not resolve a mean direction)
+    cosine  = mean over pairs i < j of g_i . g_j / (||g_i|| ||g_j||)
+
+The naive ratio Var_K / ||g_bar||^2 is biased low and saturates near K as the noise grows (its
+denominator holds the noise it divides by); subtracting Var_K / K removes that bias from the
+denominator. NSR is a ratio of unbiased estimates, so it is consistent but not itself unbiased; its
+reciprocal 1 / NSR is the squared signal-to-noise ratio of one group's gradient, and for the
+full-batch gradient g_bar the noise-to-signal is NSR / K. All three are unchanged when the loss is
+multiplied by a constant.
 """
 
 from __future__ import annotations
 
+import math
+
+import torch
 from torch import Tensor
 
-__all__ = ["gradient_variance", "per_env_gradient_variance", "batch_gradient_variance"]
+__all__ = ["gradient_variance", "per_env_gradient_variance", "batch_gradient_variance", "gradient_statistics"]
 
 
 def gradient_variance(group_grads: Tensor) -> Tensor:
@@ -62,3 +86,25 @@ def per_env_gradient_variance(group_grads: Tensor, group_size: int) -> Tensor:
 def batch_gradient_variance(group_grads: Tensor) -> Tensor:
     """Estimate of tr Cov of the full-batch (mean over all N envs) gradient: Var_K / K."""
     return gradient_variance(group_grads) / group_grads.shape[0]
+
+
+def gradient_statistics(group_grads: Tensor) -> dict[str, float]:
+    """The raw variance and the scale-free statistics of K group gradients (module docstring).
+
+    Returns ``grad_var`` (Var_K), ``grad_mean_norm`` (||g_bar||), ``grad_nsr`` (Var_K / S, +inf when
+    the bias-corrected signal S is not positive) and ``grad_cosine`` (mean pairwise cosine; a zero
+    gradient counts as orthogonal to every other).
+    """
+    grads = group_grads.double()  # sums of squares of float32 gradients lose digits the ratios need
+    var = gradient_variance(grads)
+    k = grads.shape[0]
+    mean_sq = grads.mean(dim=0).pow(2).sum()
+    signal = mean_sq - var / k
+    unit = grads / grads.norm(dim=1, keepdim=True).clamp_min(torch.finfo(grads.dtype).tiny)
+    gram = unit @ unit.T
+    return {
+        "grad_var": float(var),
+        "grad_mean_norm": float(mean_sq.sqrt()),
+        "grad_nsr": float(var / signal) if signal > 0 else math.inf,
+        "grad_cosine": float((gram.sum() - gram.diagonal().sum()) / (k * (k - 1))),
+    }

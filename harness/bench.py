@@ -309,16 +309,33 @@ class Job:
 
 
 def _training_complete(run_dir: Path, epochs: int) -> bool:
-    """True when the run's last checkpoint is at its planned epoch count (a torn run resumes instead)."""
+    """True when the run's last checkpoint is at its planned epoch count (a torn run resumes instead),
+    or, for a run whose checkpoints were not kept (the store's files in git), when its metrics log every
+    planned epoch: finished, though analyses that need the final policy cannot run on it again."""
     ckpt = run_dir / "checkpoint.pt"
     if not ckpt.is_file():
-        return False
+        return _logged_epochs(run_dir / "metrics.jsonl") >= epochs
     import torch
 
     try:
         return int(torch.load(ckpt, map_location="cpu", weights_only=False)["epoch"]) >= epochs
     except Exception:  # unreadable: the job's resume will say why
         return False
+
+
+def _logged_epochs(path: Path) -> int:
+    """How many epochs ``path`` (a run's metrics.jsonl) logs: its last epoch + 1, 0 if unreadable."""
+    try:
+        lines = path.read_text().splitlines()
+    except OSError:
+        return 0
+    last = -1
+    for line in lines:
+        try:
+            last = max(last, int(json.loads(line).get("epoch", -1)))
+        except (ValueError, TypeError, AttributeError):
+            continue  # a torn last line
+    return last + 1
 
 
 def _harness(*words) -> list[str]:

@@ -429,60 +429,147 @@ _RETURNS_COLUMNS = [
 ]
 
 
+#: the two gradient statistics every variance table and plot shows (algorithms/grad_variance.py):
+#: (metric logged per epoch, column stem, label)
+GRAD_STATISTICS = (
+    ("actor_grad_var", "var", "raw variance Var_K (scales with the loss squared)"),
+    ("actor_grad_nsr", "nsr", "noise-to-signal Var_K / S (scale-free)"),
+)
+
+
+def geometric_mean_with_ci(values: Iterable[float]) -> tuple[float, float, float]:
+    """(geometric mean, CI low, CI high): 95% percentile bootstrap of the mean of log values over seeds.
+    A zero or +inf value makes the mean 0 or +inf (a statistic some seed did not resolve); NaN bounds
+    under 2 values."""
+    x = np.asarray(list(values), dtype=float)
+    if not x.size:
+        return math.nan, math.nan, math.nan
+    with np.errstate(divide="ignore"):
+        logs = np.log(x)
+    point = float(np.exp(logs.mean()))
+    if x.size < 2 or not np.isfinite(logs).all():
+        return point, math.nan, math.nan
+    ci = stats.bootstrap(
+        (logs,),
+        np.mean,
+        vectorized=True,
+        n_resamples=BOOTSTRAP_RESAMPLES,
+        confidence_level=CONFIDENCE,
+        method="percentile",
+        rng=np.random.default_rng(BOOTSTRAP_SEED),
+    ).confidence_interval
+    return point, float(np.exp(ci.low)), float(np.exp(ci.high))
+
+
+def ratio_of_geometric_means_with_ci(high: Iterable[float], low: Iterable[float]) -> tuple[float, float, float]:
+    """gmean(high) / gmean(low) with a 95% CI from a two-sample (unpaired) percentile bootstrap of the
+    difference of mean logs; NaN bounds when a side has fewer than 2 finite positive values."""
+    h, lo = np.asarray(list(high), dtype=float), np.asarray(list(low), dtype=float)
+    if not (h.size and lo.size):
+        return math.nan, math.nan, math.nan
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lh, ll = np.log(h), np.log(lo)
+        point = float(np.exp(lh.mean() - ll.mean()))
+    if h.size < 2 or lo.size < 2 or not (np.isfinite(lh).all() and np.isfinite(ll).all()):
+        return point, math.nan, math.nan
+    ci = stats.bootstrap(
+        (lh, ll),
+        lambda x, y, axis=-1: np.mean(x, axis=axis) - np.mean(y, axis=axis),
+        vectorized=True,
+        paired=False,
+        n_resamples=BOOTSTRAP_RESAMPLES,
+        confidence_level=CONFIDENCE,
+        method="percentile",
+        rng=np.random.default_rng(BOOTSTRAP_SEED),
+    ).confidence_interval
+    return point, float(np.exp(ci.low)), float(np.exp(ci.high))
+
+
+def _seed_medians(members: list[RunRecord], metric: str) -> np.ndarray:
+    """Each run's median of ``metric`` over its epochs (NaN epochs, skipped updates, dropped; +inf kept);
+    runs that never logged it (from before the statistic existed) are left out."""
+    medians = []
+    for run in members:
+        column = _column(run.metrics, metric).to_numpy(dtype=float)
+        column = column[~np.isnan(column)]
+        if column.size:
+            medians.append(float(np.median(column)))
+    return np.asarray(medians, dtype=float)
+
+
 def grad_variance_table(runs: list[RunRecord]) -> pd.DataFrame:
-    """Median, Q1 and Q3 of ``actor_grad_var`` pooled over every epoch of every seed of a group (NaNs dropped)."""
+    """Per group and gradient statistic (GRAD_STATISTICS): the median and quartiles of every epoch of
+    every seed pooled (finite values), and the geometric mean over seeds of each seed's median with its
+    95% bootstrap CI (``{stem}_seeds``: how many seeds logged the statistic)."""
     rows = []
     for (task, backend, num_envs, planned, horizon, algo), members in _by_group(r for r in runs if r.epochs).items():
-        pooled = np.concatenate([_column(r.metrics, "actor_grad_var").to_numpy() for r in members])
-        pooled = pooled[np.isfinite(pooled)]
-        q1, median, q3 = np.percentile(pooled, [25, 50, 75]) if pooled.size else (math.nan,) * 3
-        rows.append(
-            {
-                "task": task,
-                "backend": backend,
-                "algo": algo,
-                "num_envs": num_envs,
-                "epochs": planned,
-                "horizon": horizon,
-                "seeds": len(members),
-                "values": int(pooled.size),
-                "median": float(median),
-                "q1": float(q1),
-                "q3": float(q3),
-            }
-        )
-    columns = ["task", "backend", "algo", "num_envs", "epochs", "horizon", "seeds", "values", "median", "q1", "q3"]
+        row = {
+            "task": task,
+            "backend": backend,
+            "algo": algo,
+            "num_envs": num_envs,
+            "epochs": planned,
+            "horizon": horizon,
+            "seeds": len(members),
+        }
+        for metric, stem, _ in GRAD_STATISTICS:
+            pooled = np.concatenate([_column(r.metrics, metric).to_numpy(dtype=float) for r in members])
+            pooled = pooled[np.isfinite(pooled)]
+            q1, median, q3 = np.percentile(pooled, [25, 50, 75]) if pooled.size else (math.nan,) * 3
+            per_seed = _seed_medians(members, metric)
+            gmean, low, high = geometric_mean_with_ci(per_seed)
+            prefix = "" if stem == "var" else f"{stem}_"
+            row |= {f"{prefix}values": int(pooled.size), f"{prefix}median": float(median)}
+            row |= {f"{prefix}q1": float(q1), f"{prefix}q3": float(q3)}
+            row |= {f"{stem}_seeds": int(per_seed.size), f"{stem}_gmean": gmean}
+            row |= {f"{stem}_ci_low": low, f"{stem}_ci_high": high}
+        rows.append(row)
+    columns = ["task", "backend", "algo", "num_envs", "epochs", "horizon", "seeds"]
+    for _, stem, _ in GRAD_STATISTICS:
+        prefix = "" if stem == "var" else f"{stem}_"
+        columns += [f"{prefix}{c}" for c in ("values", "median", "q1", "q3")]
+        columns += [f"{stem}_{c}" for c in ("seeds", "gmean", "ci_low", "ci_high")]
     return pd.DataFrame(rows, columns=columns)
 
 
-def grad_variance_growth_table(per_horizon: pd.DataFrame) -> pd.DataFrame:
-    """Per (task, backend, algo, num_envs, planned epochs) with a finite median at more than one horizon:
-    median(h_max) / median(h_min). Runs of another setting at some h never stand in for the sweep's."""
+def grad_variance_growth_table(runs: list[RunRecord]) -> pd.DataFrame:
+    """Per (task, backend, algo, num_envs, planned epochs) swept over h: the growth of each statistic from
+    the shortest h (and from h 32, when the sweep holds it strictly inside) to the longest. ``growth_factor``
+    is the ratio of the pooled medians; ``{stem}_growth`` the ratio of the geometric means of the seeds'
+    medians, with a 95% CI (unpaired bootstrap over seeds). Runs of another setting never stand in."""
+    groups = _by_group(r for r in runs if r.epochs)
+    settings: dict[tuple, dict[int, list[RunRecord]]] = {}
+    for (task, backend, num_envs, planned, horizon, algo), members in groups.items():
+        settings.setdefault((task, backend, algo, num_envs, planned), {})[int(horizon)] = members
     rows = []
-    finite = per_horizon[np.isfinite(per_horizon["median"].astype(float))]
-    keys = ["task", "backend", "algo", "num_envs", "epochs"]
-    for (task, backend, algo, num_envs, planned), sub in finite.groupby(keys, sort=False, dropna=False):
-        if sub["horizon"].nunique() < 2:
+    for (task, backend, algo, num_envs, planned), by_h in settings.items():
+        horizons = sorted(by_h)
+        if len(horizons) < 2:
             continue
-        low, high = sub.loc[sub["horizon"].idxmin()], sub.loc[sub["horizon"].idxmax()]
-        rows.append(
-            {
-                "task": task,
-                "backend": backend,
-                "algo": algo,
-                "num_envs": num_envs,
-                "epochs": planned,
-                "h_min": int(low["horizon"]),
-                "h_max": int(high["horizon"]),
-                "median_h_min": float(low["median"]),
-                "median_h_max": float(high["median"]),
-                "growth_factor": float(high["median"] / low["median"]) if low["median"] else math.nan,
-            }
-        )
+        top = horizons[-1]
+        bases = [horizons[0]] + ([32] if 32 in horizons[1:-1] else [])
+        for base in bases:
+            row = {"task": task, "backend": backend, "algo": algo, "num_envs": num_envs, "epochs": planned}
+            row |= {"h_min": base, "h_max": top}
+            for metric, stem, _ in GRAD_STATISTICS:
+                lo = np.concatenate([_column(r.metrics, metric).to_numpy(dtype=float) for r in by_h[base]])
+                hi = np.concatenate([_column(r.metrics, metric).to_numpy(dtype=float) for r in by_h[top]])
+                lo, hi = lo[np.isfinite(lo)], hi[np.isfinite(hi)]
+                med_lo = float(np.median(lo)) if lo.size else math.nan
+                med_hi = float(np.median(hi)) if hi.size else math.nan
+                if stem == "var":
+                    row |= {"median_h_min": med_lo, "median_h_max": med_hi}
+                    row["growth_factor"] = med_hi / med_lo if med_lo else math.nan
+                point, low, high = ratio_of_geometric_means_with_ci(
+                    _seed_medians(by_h[top], metric), _seed_medians(by_h[base], metric)
+                )
+                row |= {f"{stem}_growth": point, f"{stem}_growth_ci_low": low, f"{stem}_growth_ci_high": high}
+            rows.append(row)
     columns = [
         *("task", "backend", "algo", "num_envs", "epochs"),
         *("h_min", "h_max", "median_h_min", "median_h_max", "growth_factor"),
     ]
+    columns += [f"{stem}_growth{c}" for _, stem, _ in GRAD_STATISTICS for c in ("", "_ci_low", "_ci_high")]
     return pd.DataFrame(rows, columns=columns)
 
 
@@ -1051,40 +1138,63 @@ def returns_document(runs: list[RunRecord]) -> Table:
 
 
 def grad_variance_document(runs: list[RunRecord]) -> Table:
-    """Actor-gradient variance per horizon, and its growth from the shortest to the longest."""
+    """Both actor-gradient statistics per horizon, and their growth from the shortest horizon to the longest."""
     trained = [r for r in runs if r.epochs]
     per_h = grad_variance_table(runs)
+
+    def with_ci(stem):
+        return lambda r: f"{_fmt(r[stem + '_gmean'])} [{_fmt(r[stem + '_ci_low'])}, {_fmt(r[stem + '_ci_high'])}]"
+
+    def growth(stem):
+        return lambda r: (
+            f"{_fmt(r[stem + '_growth'])} [{_fmt(r[stem + '_growth_ci_low'])}, {_fmt(r[stem + '_growth_ci_high'])}]"
+        )
+
     return Table(
         "grad_variance_vs_h",
-        "Actor-gradient variance against the horizon h",
+        "Actor-gradient variance against the horizon h: raw and scale-free",
         rests_on_runs(trained),
         [
             Section(
                 per_h,
                 _key_columns("task", "backend", "algo", "num_envs", "epochs", "horizon", "seeds")
-                + [("epochs pooled", "values"), ("median", "median"), ("Q1", "q1"), ("Q3", "q3")],
+                + [
+                    ("raw: seeds' gmean [95% CI]", with_ci("var")),
+                    ("raw: pooled median", "median"),
+                    ("raw: Q1", "q1"),
+                    ("raw: Q3", "q3"),
+                    ("NSR: seeds", "nsr_seeds"),
+                    ("NSR: seeds' gmean [95% CI]", with_ci("nsr")),
+                    ("NSR: pooled median", "nsr_median"),
+                ],
                 empty="no run has metrics",
             ),
             Section(
-                grad_variance_growth_table(per_h),
+                grad_variance_growth_table(runs),
                 _key_columns("task", "backend", "algo", "num_envs", "epochs")
                 + [
-                    ("h min", "h_min"),
-                    ("h max", "h_max"),
-                    ("median at h min", "median_h_min"),
-                    ("median at h max", "median_h_max"),
-                    ("growth factor", "growth_factor"),
+                    ("from h", "h_min"),
+                    ("to h", "h_max"),
+                    ("raw growth [95% CI]", growth("var")),
+                    ("raw growth, pooled medians", "growth_factor"),
+                    ("NSR growth [95% CI]", growth("nsr")),
                 ],
-                heading="Growth from the shortest to the longest horizon",
+                heading="Growth from the shortest horizon (and from h 32) to the longest",
                 csv_suffix="_growth",
                 empty="no algorithm has runs at more than one horizon",
             ),
         ],
         [
-            "actor_grad_var of every epoch of every seed pooled (NaN epochs dropped); median and quartiles "
-            "(numpy's linear interpolation). A row pools only runs of one setting (N envs, planned epochs): runs "
-            "of another block at the same h are another row. Growth factor: median at the longest h / median at "
-            "the shortest, within one setting."
+            "raw: actor_grad_var, the trace of the K group gradients' covariance; it scales with the square of "
+            "the loss, so it also measures the loss's size (actor_reward_weight). NSR: actor_grad_nsr, that "
+            "variance over the bias-corrected squared norm of the mean gradient; unchanged by the loss's scale "
+            "(docs/gradient-statistics.md). Seeds' gmean: the geometric mean over training seeds of each seed's "
+            "median over epochs, with a 95% percentile bootstrap CI over seeds; inf when a seed's median NSR is "
+            "unresolved (inf). Pooled median, Q1, Q3: every finite epoch of every seed. Growth: the ratio of "
+            "the seeds' geometric means at the longest h to the shortest (and to h 32), with an unpaired "
+            "bootstrap CI; 'pooled medians' is the same ratio of pooled medians. A row pools only runs of one "
+            "setting (N envs, planned epochs). Runs from before the scale-free statistic have no NSR "
+            "(NSR: seeds counts the runs that logged it)."
         ],
         _run_commits(trained),
     )
@@ -1468,56 +1578,67 @@ def plot_learning_curves(runs: list[RunRecord], x: str, path: Path) -> Path:
 
 
 def plot_grad_variance(per_h: pd.DataFrame, path: Path) -> Path:
-    """Median actor-gradient variance against h, IQR error bars, log y, one line per algorithm, one panel per
-    (task, backend, N, planned epochs). Where some setting was swept over h, only swept settings are drawn (the
-    others are one point each and stay in the table)."""
+    """Both gradient statistics against h, log-log: per (task, backend, N, planned epochs) one panel of the
+    raw variance and one of the scale-free noise-to-signal ratio, one line per algorithm; points are the
+    geometric mean over seeds of each seed's median, bars its 95% bootstrap CI. Where some setting was
+    swept over h, only swept settings are drawn (the others are one point each and stay in the table)."""
     plt, sns = _pyplot()
-    data = per_h[np.isfinite(per_h["median"].astype(float)) & (per_h["median"].astype(float) > 0)]
+    finite = np.zeros(len(per_h), dtype=bool)
+    for _, stem, _ in GRAD_STATISTICS:
+        values = per_h[f"{stem}_gmean"].astype(float)
+        finite |= np.isfinite(values) & (values > 0)
+    data = per_h[finite]
     if data.empty:
-        raise NoPlotData("no finite actor_grad_var")
+        raise NoPlotData("no finite actor_grad_var or actor_grad_nsr")
     setting = ["task", "backend", "num_envs", "epochs"]
     swept = data.groupby(setting, dropna=False)["horizon"].transform("nunique") > 1
     if swept.any():
         data = data[swept]
     panels = list(dict.fromkeys(zip(*(data[c] for c in setting), strict=True)))
-    ncols = min(3, len(panels))
-    nrows = math.ceil(len(panels) / ncols)
-    fig, axes = plt.subplots(nrows, ncols, figsize=(5.2 * ncols, 3.9 * nrows), squeeze=False)
+    ncols = len(GRAD_STATISTICS)
+    fig, axes = plt.subplots(len(panels), ncols, figsize=(5.6 * ncols, 3.9 * len(panels)), squeeze=False)
     palette = _algo_palette(data["algo"])
-    for ax, (task, backend, num_envs, planned) in zip(axes.flat, panels, strict=False):
+    for row_axes, (task, backend, num_envs, planned) in zip(axes, panels, strict=True):
         same = (data["task"] == task) & (data["backend"] == backend)
         same &= _same(data["num_envs"], num_envs) & _same(data["epochs"], planned)
         sub = data[same]
-        algos = [a for a in palette if a in set(sub["algo"])]
-        for i, algo in enumerate(algos):
-            line = sub[sub["algo"] == algo].sort_values("horizon")
-            # a slight horizontal offset per algorithm keeps bars at one h apart
-            shift = 2.0 ** (0.05 * (i - (len(algos) - 1) / 2))
-            median = line["median"].to_numpy(float)
-            spread = np.vstack([median - line["q1"].to_numpy(float), line["q3"].to_numpy(float) - median])
-            ax.errorbar(
-                line["horizon"].to_numpy(float) * shift,
-                median,
-                yerr=np.clip(spread, 0.0, None),
-                marker="o",
-                capsize=4,
-                label=algo,
-                color=palette[algo],
-            )
         horizons = sorted(sub["horizon"].unique())
-        ax.set_xscale("log", base=2)
-        # half an octave of room either side: a single h would otherwise be zoomed onto the offsets
-        ax.set_xlim(min(horizons) / 2**0.5, max(horizons) * 2**0.5)
-        ax.set_xticks(horizons, [str(h) for h in horizons])
-        ax.minorticks_off()
-        ax.set_yscale("log")
-        ax.set_title(f"{task} / {backend}, N={_fmt(num_envs)}, {_fmt(planned)} epochs")
-        ax.set_xlabel("horizon h (steps)")
-        ax.set_ylabel("actor-gradient variance")
-        ax.legend(fontsize="small")
-    for ax in axes.flat[len(panels) :]:
-        ax.set_visible(False)
-    fig.suptitle("Actor-gradient variance vs horizon: median over all epochs and seeds, bars = IQR (Q1-Q3)")
+        algos = [a for a in palette if a in set(sub["algo"])]
+        for ax, (_, stem, label) in zip(row_axes, GRAD_STATISTICS, strict=True):
+            drawn = False
+            for i, algo in enumerate(algos):
+                line = sub[sub["algo"] == algo].sort_values("horizon")
+                point = line[f"{stem}_gmean"].to_numpy(float)
+                keep = np.isfinite(point) & (point > 0)
+                if not keep.any():
+                    continue
+                low, high = line[f"{stem}_ci_low"].to_numpy(float), line[f"{stem}_ci_high"].to_numpy(float)
+                spread = np.vstack([np.nan_to_num(point - low), np.nan_to_num(high - point)])[:, keep]
+                # a slight horizontal offset per algorithm keeps bars at one h apart
+                shift = 2.0 ** (0.05 * (i - (len(algos) - 1) / 2))
+                ax.errorbar(
+                    line["horizon"].to_numpy(float)[keep] * shift,
+                    point[keep],
+                    yerr=np.clip(spread, 0.0, None),
+                    marker="o",
+                    capsize=4,
+                    label=algo,
+                    color=palette[algo],
+                )
+                drawn = True
+            ax.set_xscale("log", base=2)
+            # half an octave of room either side: a single h would otherwise be zoomed onto the offsets
+            ax.set_xlim(min(horizons) / 2**0.5, max(horizons) * 2**0.5)
+            ax.set_xticks(horizons, [str(h) for h in horizons])
+            ax.minorticks_off()
+            ax.set_title(f"{task} / {backend}, N={_fmt(num_envs)}, {_fmt(planned)} epochs\n{label}", fontsize="medium")
+            ax.set_xlabel("horizon h (steps)")
+            if drawn:
+                ax.set_yscale("log")
+                ax.legend(fontsize="small")
+            else:
+                ax.text(0.5, 0.5, "not logged by these runs", ha="center", va="center", transform=ax.transAxes)
+    fig.suptitle("Actor-gradient statistics vs horizon: geometric mean over seeds of each seed's median, bars = 95% CI")
     fig.tight_layout()
     return _save_figure(fig, path)
 
@@ -1723,7 +1844,7 @@ def plot_landscapes(runs: list[RunRecord], out_dir: Path) -> tuple[list[Path], l
 PLOT_DESCRIPTIONS = {
     "learning_curves_steps.png": "training return vs env steps, per task x backend at its most common horizon",
     "learning_curves_wall.png": "training return vs wall-clock minutes, same runs",
-    "grad_variance_vs_h.png": "median actor-gradient variance vs h with IQR bars, log y",
+    "grad_variance_vs_h.png": "raw and scale-free actor-gradient statistics vs h, seeds' 95% CIs, log-log",
     "lambda_alpha.png": "lambda and SAPO's alpha per epoch, per task",
     "wall_time.png": "seconds per epoch split into simulation, backward and updates",
     "throughput.png": "env-steps/s forward and forward+backward per backend x task, log y",

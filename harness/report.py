@@ -32,6 +32,8 @@ COLUMNS = (
     "eval_seeds",
     "final_lambda",
     "median_actor_grad_var",
+    "median_actor_grad_nsr",
+    "median_actor_grad_cosine",
     "skipped_actor_updates",
 )
 
@@ -40,13 +42,19 @@ def _read_rows(run: Path) -> list[dict]:
     return read_metrics(run / "metrics.jsonl")  # a torn last line (a killed run) is dropped
 
 
+def _median(rows: list[dict], key: str) -> float | None:
+    """The median of ``key`` over the epochs that logged it (NaN, a skipped update, dropped; +inf, an
+    unresolved noise-to-signal ratio, kept: a median is defined with it)."""
+    values = sorted(r[key] for r in rows if r.get(key) is not None and r[key] == r[key])
+    return values[len(values) // 2] if values else None
+
+
 def summarize(run: str | Path) -> dict:
     run = Path(run)
     config = json.loads((run / "config.json").read_text())
     rows = _read_rows(run)
     ev = json.loads((run / "eval.json").read_text()) if (run / "eval.json").exists() else None
     returns = [r["train_episode_return"] for r in rows[-20:] if r.get("train_episode_return") is not None]
-    grad_vars = sorted(r["actor_grad_var"] for r in rows if r.get("actor_grad_var") == r.get("actor_grad_var"))
     total = lambda key: sum(r.get(key, 0.0) for r in rows) / 60.0  # noqa: E731
     return {
         "run": run.name,
@@ -66,7 +74,11 @@ def summarize(run: str | Path) -> dict:
         "eval_std_over_seeds": ev["final"]["std_over_seeds"] if ev else None,
         "eval_seeds": ev["seeds"] if ev else None,
         "final_lambda": rows[-1]["lam"] if rows else None,
-        "median_actor_grad_var": grad_vars[len(grad_vars) // 2] if grad_vars else None,
+        # raw (scales with the loss squared) and scale-free (algorithms/grad_variance.py); runs from before
+        # the scale-free statistics have none
+        "median_actor_grad_var": _median(rows, "actor_grad_var"),
+        "median_actor_grad_nsr": _median(rows, "actor_grad_nsr"),
+        "median_actor_grad_cosine": _median(rows, "actor_grad_cosine"),
         "skipped_actor_updates": sum(bool(r.get("actor_update_skipped")) for r in rows),
     }
 
@@ -91,7 +103,16 @@ def write_table(summaries: list[dict], out_prefix: str | Path, command: str) -> 
     return md_path, csv_path
 
 
-AGGREGATED = ("eval_final", "eval_initial", "train_return_last20", "median_actor_grad_var", "final_lambda", "wall_min")
+AGGREGATED = (
+    "eval_final",
+    "eval_initial",
+    "train_return_last20",
+    "median_actor_grad_var",
+    "median_actor_grad_nsr",
+    "median_actor_grad_cosine",
+    "final_lambda",
+    "wall_min",
+)
 # two-sided 95% Student t quantiles for n - 1 = 1..30 degrees of freedom
 _T95 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145, 2.131)
 _T95 += (2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048, 2.045, 2.042)

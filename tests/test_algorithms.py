@@ -12,7 +12,7 @@ pytest.importorskip("newton")
 
 from algorithms.actor_critic import FirstOrderActorCritic  # noqa: E402
 from algorithms.config import PRESETS, preset  # noqa: E402
-from algorithms.grad_variance import gradient_variance  # noqa: E402
+from algorithms.grad_variance import gradient_statistics, gradient_variance  # noqa: E402
 from algorithms.returns import actor_loss_from_returns, critic_targets, segment_starts  # noqa: E402
 from backends import make  # noqa: E402
 from harness.cli import main as cli  # noqa: E402
@@ -78,6 +78,42 @@ def test_logged_gradient_variance_is_that_of_the_update(env):
     full = torch.cat([p.grad.reshape(-1) for p in twin.actor.parameters()])
     assert torch.allclose(groups.mean(0), full, rtol=1e-4, atol=1e-6 * full.abs().max())
     assert metrics["actor_grad_var"] == pytest.approx(float(gradient_variance(groups)), rel=1e-5)
+
+
+@pytest.mark.parametrize("scale", [1e-3, 40.0])
+def test_scale_free_gradient_statistics_ignore_the_loss_scale(env, scale):
+    """Multiplying the actor loss by c scales the group gradients by c: the raw variance by c^2, the
+    mean gradient's norm by c, and leaves the noise-to-signal ratio and the cosine as they were."""
+    env.reset()
+    start = env.state_dict()
+    stats = []
+    for c in (1.0, scale):
+        algo = _algo("shac-tdfixed")
+        env.load_state_dict(start)
+        torch.manual_seed(3)
+        w = algo.rollout(env)
+        algo.actor.zero_grad()
+        (c * algo.actor_loss(w)).backward()
+        stats.append(gradient_statistics(algo.group_gradients(w)))
+    base, scaled = stats
+    assert scaled["grad_var"] == pytest.approx(scale**2 * base["grad_var"], rel=1e-4)
+    assert scaled["grad_mean_norm"] == pytest.approx(scale * base["grad_mean_norm"], rel=1e-4)
+    assert scaled["grad_nsr"] == pytest.approx(base["grad_nsr"], rel=1e-4)
+    assert scaled["grad_cosine"] == pytest.approx(base["grad_cosine"], rel=1e-4, abs=1e-6)
+
+
+@pytest.mark.parametrize("name", ["shac", "shac-tdfixed", "sapo-tdfixed"])
+def test_effective_reward_weight_is_the_returns_sum_of_weights(env, name):
+    """Within one segment the h-step return weights reward l by gamma^l and the truncated TD-lambda
+    return by (gamma lambda)^l (the lambda-weights of the n-step returns that hold it sum to lambda^l)."""
+    env.reset()
+    algo = _algo(name)
+    w = algo.rollout(env)
+    assert not (w.terminated.any() or w.truncated.any())  # one segment per env: the closed forms hold
+    decay = algo.cfg.gamma * (1.0 if name == "shac" else algo.cfg.lam)
+    assert algo.reward_weight(w) == pytest.approx(sum(decay**step for step in range(H)), rel=1e-5)
+    logged = algo.train_epoch(env)
+    assert {"actor_grad_nsr", "actor_grad_cosine", "actor_grad_mean_norm", "actor_reward_weight"} <= set(logged)
 
 
 def test_group_gradients_equal_one_backward_per_group(env):

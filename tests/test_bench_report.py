@@ -18,6 +18,8 @@ from harness.bench_report import (
     base_algo,
     collect_runs,
     curve_settings,
+    grad_variance_growth_table,
+    grad_variance_table,
     header_lines,
     iqm_difference_with_ci,
     learning_curve_frame,
@@ -67,6 +69,7 @@ def make_run(
     split_update: bool = True,
     num_envs: int = 4,
     epochs: int = EPOCHS,
+    extra: dict[str, list] | None = None,
 ) -> Path:
     """A run directory as harness/train.py leaves it: config.json, metrics.jsonl and (unless final is None)
     eval.json. ``grad_var``: actor_grad_var of each epoch (NaN allowed, as the log has it)."""
@@ -105,6 +108,7 @@ def make_run(
         }
         if split_update:
             row |= {"actor_update_s": ACTOR, "critic_update_s": CRITIC, "lambda_update_s": LAMBDA}
+        row |= {name: values[epoch] for name, values in (extra or {}).items()}
         rows.append(row)
     # json.dumps writes NaN as the NaN literal, exactly as the training log does
     (run / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
@@ -308,6 +312,56 @@ def test_grad_variance_quartiles_and_growth(suite):
     assert (shac["h_min"], shac["h_max"], shac["growth_factor"]) == (16, 32, pytest.approx(8.0 / 2.0))
     assert shac["num_envs"] == 4
     assert len(growth) == 1  # shac-tdadpt and the 8-env setting have one horizon each
+
+
+def test_both_gradient_statistics_have_seed_cis_and_growth(tmp_path):
+    """Seeds' geometric means with bootstrap CIs for the raw variance and the noise-to-signal ratio, and
+    their growth from the shortest h (and from h 32) to the longest; a seed whose median NSR is
+    unresolved (inf) makes its cell inf with no CI, and runs from before the statistic count as absent."""
+    raw = {16: [1.0, 2.0, 4.0], 32: [2.0, 4.0, 8.0], 80: [8.0, 16.0, 32.0]}
+    nsr = {16: [1.0, 1.0, 4.0], 32: [1.0, 2.0, 2.0], 80: [2.0, 2.0, 8.0]}
+    for h in raw:
+        for seed in range(3):
+            extra = {"actor_grad_nsr": [nsr[h][seed]] * EPOCHS}
+            make_run(tmp_path, "ant", "newton", "shac", seed, h, None, [raw[h][seed]] * EPOCHS, extra=extra)
+    make_run(tmp_path, "ant", "newton", "sapo", 0, 16, None, [1.0] * EPOCHS)  # no NSR logged: an old run
+    for seed, value in enumerate([1.0, math.inf]):
+        make_run(
+            tmp_path,
+            "ant",
+            "newton",
+            "sapo",
+            seed,
+            80,
+            None,
+            [1.0] * EPOCHS,
+            extra={"actor_grad_nsr": [value] * EPOCHS},
+        )
+    runs = [load_run(p) for p in collect_runs(tmp_path)]
+    table = grad_variance_table(runs)
+    h16 = _row(table, algo="shac", horizon=16)
+    assert h16["var_gmean"] == pytest.approx(2.0) and h16["nsr_gmean"] == pytest.approx(4.0 ** (1 / 3))
+    assert 1.0 <= h16["var_ci_low"] <= h16["var_gmean"] <= h16["var_ci_high"] <= 4.0
+    assert _row(table, algo="sapo", horizon=16)["nsr_seeds"] == 0
+    unresolved = _row(table, algo="sapo", horizon=80)
+    assert unresolved["nsr_gmean"] == math.inf and math.isnan(unresolved["nsr_ci_low"])
+    growth = grad_variance_growth_table(runs)
+    from16, from32 = _row(growth, algo="shac", h_min=16), _row(growth, algo="shac", h_min=32)
+    assert from16["var_growth"] == pytest.approx(8.0) and from32["var_growth"] == pytest.approx(4.0)
+    assert from16["nsr_growth"] == pytest.approx((32.0 / 4.0) ** (1 / 3))
+    assert from16["var_growth_ci_low"] <= from16["var_growth"] <= from16["var_growth_ci_high"]
+    independent = stats.bootstrap(
+        (np.log(raw[80]), np.log(raw[16])),
+        lambda x, y, axis=-1: x.mean(axis=axis) - y.mean(axis=axis),
+        vectorized=True,
+        paired=False,
+        n_resamples=2000,
+        confidence_level=0.95,
+        method="percentile",
+        rng=np.random.default_rng(0),
+    ).confidence_interval
+    assert from16["var_growth_ci_low"] == pytest.approx(math.exp(independent.low))
+    assert from16["var_growth_ci_high"] == pytest.approx(math.exp(independent.high))
 
 
 def test_wall_time_split(suite):
