@@ -354,9 +354,14 @@ class PluginRegistry:
     def __init__(self, group: str, base: type, kind: str):
         self.group, self.base, self.kind = group, base, kind
         self._runtime: dict[str, type] = {}
+        self._installed: dict | None = None
 
     def _entry_points(self) -> dict:
-        return {ep.name: ep for ep in entry_points(group=self.group)}
+        # read once per process: scanning every installed distribution's metadata costs ~20 ms, and a
+        # suite plan looks names up thousands of times (a package installed later needs a new process)
+        if self._installed is None:
+            self._installed = {ep.name: ep for ep in entry_points(group=self.group)}
+        return self._installed
 
     def available(self) -> list[str]:
         """Every registered name, sorted (nothing is imported)."""

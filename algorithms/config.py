@@ -12,6 +12,7 @@ Every field's ``help`` is its documentation and the ``--help`` text of its comma
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass, field
 from typing import Literal, get_args, get_type_hints
@@ -118,10 +119,16 @@ class AlgoConfig:
         return next(f.metadata.get("help", "") for f in dataclasses.fields(cls) if f.name == name)
 
 
+@functools.cache
+def _type_hints() -> dict:
+    """AlgoConfig's field types, resolved once (the annotations are strings; resolving them is slow)."""
+    return get_type_hints(AlgoConfig)
+
+
 def _problems(cfg: AlgoConfig) -> list[str]:
     """Every range and type violation of ``cfg``, each as one phrase naming the valid range."""
     problems = []
-    hints = get_type_hints(AlgoConfig)
+    hints = _type_hints()
     for f in dataclasses.fields(cfg):
         value, hint = getattr(cfg, f.name), hints[f.name]
         choices = get_args(hint) if getattr(hint, "__origin__", None) is Literal else None

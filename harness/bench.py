@@ -7,16 +7,17 @@
   since a Warp CPU kernel runs on one thread), ``device``;
 * ``[eval]``: the evaluation protocol of every training run (``seeds``, optional ``num_envs``, default
   2N, and ``max_steps``);
-* ``[[train]]``: a grid ``backends x tasks x algos x seeds x horizons`` with ``epochs``, ``num_envs``
-  and any AlgoConfig field under ``[train.hyperparameters]``; ``[train.per_task.TASK]`` overrides
-  ``epochs``, ``num_envs``, ``horizons``, ``seeds`` or hyperparameters for one task, and
+* ``[[train]]``: a grid ``backends x tasks x algos x seeds x horizons`` with ``epochs``, ``num_envs``,
+  an optional physics ``preset`` (a name from ``harness list``; default: each task's own) and any
+  AlgoConfig field under ``[train.hyperparameters]``; ``[train.per_task.TASK]`` overrides
+  ``epochs``, ``num_envs``, ``horizons``, ``seeds``, ``preset`` or hyperparameters for one task, and
   ``[train.eval]`` the evaluation protocol for the block (``seeds = 0``: no evaluation);
 * ``[[check]]``: ``kind`` (gradcheck, throughput, crosscheck, parity), ``backends``, ``tasks`` and the verb's
   extra ``args`` (a list of command-line words), optionally ``[check.per_task.TASK]`` with ``args``;
 * ``[[sim_to_sim]]``: runs of the train grid (``task``, ``train_backend``, ``algos``, ``seeds``,
-  ``horizon``) evaluated on ``train_backend`` and ``eval_backend`` with one protocol (``eval_seeds``,
+  ``horizon``, ``preset``) evaluated on ``train_backend`` and ``eval_backend`` with one protocol (``eval_seeds``,
   ``num_envs``, ``max_steps``);
-* ``[[landscape]]``: runs of the grid (``task``, ``backend``, ``algos``, ``seeds``, ``horizon``) whose
+* ``[[landscape]]``: runs of the grid (``task``, ``backend``, ``algos``, ``seeds``, ``horizon``, ``preset``) whose
   h-step and TD-lambda actor losses are mapped over a ``grid`` x ``grid`` plane (``span``, ``num_envs``).
 
 Layout: ``STORE/NAME/`` (``--store``, default ``results/bench``; NAME is the spec's ``[suite] name``)
@@ -24,8 +25,10 @@ holds the tables and plots, ``runs/``, ``checks/`` and ``logs/``. Give two specs
 the same ``--store``) to share runs between them.
 
 Content addressing. A training run's directory is named by its task, backend, algorithm, horizon,
-seed and a hash of its full configuration (task, backend, seed, device, epochs and every
-hyperparameter): ``runs/ant_newton_shac_h32_s0_3f2a9c1b7d0e``. The same configuration in any spec,
+seed and a hash of its full configuration (task, backend, seed, device, epochs, every
+hyperparameter and the physics record: preset, constants, engine settings):
+``runs/ant_newton_shac_h32_s0_3f2a9c1b7d0e``, ``runs/ant.rewarped_newton_shac_h32_s0_...`` for a
+preset other than the task's default. The same configuration in any spec,
 profile or session lands in the same directory, so a finished run is reused, an interrupted one
 resumed from its last checkpoint (``train --resume`` semantics), and none is ever computed twice.
 Checks and analyses are addressed the same way by their command line. Every job runs in its own
@@ -133,12 +136,13 @@ def load_spec(profile: str | None = None, spec_file: str | None = None) -> tuple
     return data, path
 
 
-def physics_identity(task: str) -> dict:
-    """The physics record (preset, constants, engine settings) of ``task``'s default preset, as a
-    run's config.json holds it: part of every run's and check's address, so a changed default is new work."""
+def physics_identity(task: str, preset: str | None = None) -> dict:
+    """The physics record (preset, constants, engine settings) of ``task``'s ``preset`` (default: the
+    task's default), as a run's config.json holds it: part of every run's and check's address, so a
+    changed default is new work."""
     import tasks
 
-    return copy.deepcopy(_physics_identity(task, tasks.task_class(task).default_preset))
+    return copy.deepcopy(_physics_identity(task, preset or tasks.task_class(task).default_preset))
 
 
 @functools.cache
@@ -164,6 +168,7 @@ class RunSpec:
     eval_seeds: int = 10
     eval_num_envs: int | None = None
     eval_max_steps: int | None = None
+    preset: str | None = None  # a physics preset other than the task's default (None: the default)
 
     def algo_config(self):
         from algorithms.config import preset
@@ -184,7 +189,7 @@ class RunSpec:
             "epochs": self.epochs,
             "algo": cfg.as_dict(),
             # the physics the run rests on (preset, constants, engine settings): a changed default is a new run
-            "physics": physics_identity(self.task),
+            "physics": physics_identity(self.task, self.preset),
         }
 
     @property
@@ -193,7 +198,8 @@ class RunSpec:
 
     @property
     def dirname(self) -> str:
-        return f"{self.task}_{self.backend}_{self.algo}_h{self.horizon}_s{self.seed}_{self.key}"
+        task = self.task if self.preset is None else f"{self.task}.{self.preset}"
+        return f"{task}_{self.backend}_{self.algo}_h{self.horizon}_s{self.seed}_{self.key}"
 
     @property
     def env_steps(self) -> int:
@@ -213,7 +219,7 @@ def _train_grid(data: dict, device: str, known: dict) -> list[RunSpec]:
         _expect(
             block,
             {"backends", "tasks", "algos", "seeds", "horizons", "epochs", "num_envs", "hyperparameters"}
-            | {"per_task", "eval"},
+            | {"per_task", "eval", "preset"},
             where,
         )
         block_eval = {**ev, **block.get("eval", {})}
@@ -224,13 +230,14 @@ def _train_grid(data: dict, device: str, known: dict) -> list[RunSpec]:
                 raise RunError(f"{where}: needs {key}")
         per_task = block.get("per_task", {})
         for task, override in per_task.items():
-            allowed = {"epochs", "num_envs", "horizons", "seeds", "hyperparameters"}
+            allowed = {"epochs", "num_envs", "horizons", "seeds", "hyperparameters", "preset"}
             _expect(override, allowed, f"{where} per_task.{task}")
         for backend in _names(block["backends"], f"{where} backends"):
             _known(backend, known["backends"], "backend", where)
             for task in _names(block["tasks"], f"{where} tasks"):
                 _known(task, known["tasks"], "task", where)
                 merged = {**block, **per_task.get(task, {})}
+                preset = _preset(task, merged.get("preset"), where)
                 hyper = {**block.get("hyperparameters", {}), **per_task.get(task, {}).get("hyperparameters", {})}
                 for algo in _names(block["algos"], f"{where} algos"):
                     _known(algo, known["algos"], "algorithm", where)
@@ -249,6 +256,7 @@ def _train_grid(data: dict, device: str, known: dict) -> list[RunSpec]:
                                 eval_seeds=int(block_eval.get("seeds", 10)),
                                 eval_num_envs=block_eval.get("num_envs"),
                                 eval_max_steps=block_eval.get("max_steps"),
+                                preset=preset,
                             )
                             try:
                                 run.algo_config()
@@ -266,6 +274,18 @@ def _train_grid(data: dict, device: str, known: dict) -> list[RunSpec]:
     # suite stops, every block and algorithm has the same number of seeds and every table has rows
     runs.sort(key=lambda r: r.seed)
     return runs
+
+
+def _preset(task: str, name, where: str) -> str | None:
+    """A block's preset for ``task``, checked: None for the task's default (named or not), so naming the
+    default addresses the same runs as leaving it out."""
+    import tasks
+
+    cls = tasks.task_class(task)
+    if name is None or name == cls.default_preset:
+        return None
+    _known(name, list(cls.presets), f"physics preset of {task}", where)
+    return str(name)
 
 
 def _known(name, names, kind: str, where: str) -> None:
@@ -389,7 +409,7 @@ def plan(data: dict, store: Path) -> list[Job]:
     for run in runs:
         job = train_job(run, store / "runs" / run.dirname)
         jobs.append(job)
-        by_identity[(run.task, run.backend, run.algo, run.seed, run.horizon)] = job
+        by_identity[(run.task, run.backend, run.algo, run.seed, run.horizon, run.preset)] = job
 
     for i, block in enumerate(data.get("check", [])):
         where = f"[[check]] #{i + 1}"
@@ -431,12 +451,13 @@ def plan(data: dict, store: Path) -> list[Job]:
     def select(block: dict, where: str, backend_key: str) -> list[Job]:
         found = [
             job
-            for (task, backend, algo, seed, horizon), job in by_identity.items()
+            for (task, backend, algo, seed, horizon, preset), job in by_identity.items()
             if task == block.get("task")
             and backend == block.get(backend_key)
             and algo in _names(block.get("algos", [algo]), f"{where} algos")
             and seed in [int(s) for s in _names(block.get("seeds", [seed]), f"{where} seeds")]
             and horizon == int(block.get("horizon", horizon))
+            and preset == _preset(task, block.get("preset"), where)
         ]
         if not found:
             raise RunError(f"{where}: selects no run of the [[train]] grid; it needs runs to analyse")
@@ -446,7 +467,7 @@ def plan(data: dict, store: Path) -> list[Job]:
         where = f"[[sim_to_sim]] #{i + 1}"
         _expect(
             block,
-            {"task", "train_backend", "eval_backend", "algos", "seeds", "horizon"}
+            {"task", "train_backend", "eval_backend", "algos", "seeds", "horizon", "preset"}
             | {"eval_seeds", "num_envs", "max_steps"},
             where,
         )
@@ -478,7 +499,7 @@ def plan(data: dict, store: Path) -> list[Job]:
 
     for i, block in enumerate(data.get("landscape", [])):
         where = f"[[landscape]] #{i + 1}"
-        _expect(block, {"task", "backend", "algos", "seeds", "horizon", "grid", "span", "num_envs"}, where)
+        _expect(block, {"task", "backend", "algos", "seeds", "horizon", "grid", "span", "num_envs", "preset"}, where)
         for source in select(block, where, "backend"):
             grid, span = int(block.get("grid", 40)), float(block.get("span", 1.0))
             num_envs = int(block.get("num_envs", source.run.num_envs))
@@ -732,6 +753,7 @@ def _train_and_evaluate(run_dir: Path, job: dict, stream) -> None:
             device=job["device"],
             command="python -m harness bench-run " + str(run_dir),
             stream=stream,
+            preset=job["physics"]["preset"],
         )
     if ev["seeds"]:
         evaluate(run_dir, seeds=ev["seeds"], num_envs=ev["num_envs"], max_steps=ev["max_steps"], stream=stream)

@@ -181,6 +181,20 @@ def _column(frame: pd.DataFrame, name: str) -> pd.Series:
     return pd.to_numeric(frame[name], errors="coerce").astype(float)
 
 
+def _task_label(task: str, config: dict) -> str:
+    """The task as tables name it: ``ant`` on the task's default physics preset, ``ant.rewarped`` on
+    another (as the suite names its run folders), so runs of two physics never pool as seeds of one row."""
+    import tasks
+    from simcore import UnknownNameError
+
+    preset = (config.get("physics_record") or {}).get("preset")
+    try:
+        default = tasks.task_class(task).default_preset
+    except UnknownNameError:  # a task this installation does not have: its name as recorded
+        return task
+    return task if preset in (None, default) else f"{task}.{preset}"
+
+
 def load_run(run_dir: Path, stream=sys.stdout) -> RunRecord | None:
     """Read one run directory; None (said on ``stream``) when its config.json is missing or unusable."""
     run_dir = Path(run_dir)
@@ -216,7 +230,7 @@ def load_run(run_dir: Path, stream=sys.stdout) -> RunRecord | None:
     landscape = _read_json(run_dir / "landscape.json", stream)
     return RunRecord(
         path=run_dir,
-        task=task,
+        task=_task_label(task, config),
         backend=backend,
         algo=algo,
         horizon=horizon,

@@ -14,6 +14,8 @@ Physics presets (``--preset``; docs/physics.md compares them):
 * ``bench_semi_implicit``: the same constants on Newton's semi-implicit solver (maximal coordinates,
   joints held by penalty springs) with no armature, which that solver cannot represent. About 5x
   the throughput; its joints stretch under load, so its physics is not MuJoCo's.
+* ``bench_kf3000``: the bench constants with DiffRL's own friction slope, kf 3e3: where the h-step
+  return's gradients blow up in contact (docs/gradient-statistics.md), kept to measure that.
 * ``rewarped``: Rewarped 1.3.3's ``AntDflex``, the paper's simulator, constant by constant:
   Featherstone; the contact constants of an Ant shape (ke 4e3, kd 1e3, kf 3e2, mu 0.75) averaged with
   Rewarped's ground plane (ke 1e5, kd 1e3, kf 1e3, mu 0.5), as its contact kernel does; limits ke 1e3 /
@@ -82,6 +84,11 @@ PRESETS = {
         dataclasses.replace(BENCH_PHYSICS, armature=0.0),
         {"newton": {"solver": "semi_implicit"}},
         about="the bench constants without armature on Newton's semi-implicit solver (maximal coordinates)",
+    ),
+    "bench_kf3000": PhysicsPreset(
+        dataclasses.replace(BENCH_PHYSICS, contact_kf=3.0e3),
+        {"newton": {"solver": "featherstone"}},
+        about="the bench constants with DiffRL's friction slope kf 3e3, where h-step gradients explode",
     ),
     "rewarped": PhysicsPreset(
         REWARPED_PHYSICS,

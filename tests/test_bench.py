@@ -77,6 +77,21 @@ def test_run_address_is_its_full_config():
     assert base.dirname.startswith("ant_newton_shac_h16_s0_")
 
 
+def test_a_block_may_choose_a_physics_preset(tmp_path):
+    """A block's preset is part of its runs' addresses and names; naming the task's default preset
+    addresses the same runs as leaving it out."""
+    block = "[[train]]\nbackends=['newton']\ntasks=['ant']\nalgos=['shac']\nseeds=[0]\nhorizons=[8]\nepochs=2\n"
+    text = "[suite]\nname='p'\n" + block + block + "preset='bench'\n" + block + "preset='rewarped'\n"
+    data, _ = load_spec(spec_file=str(_write(tmp_path, text)))
+    runs = [j.run for j in plan(data, tmp_path) if j.kind == "train"]
+    assert len(runs) == 2  # the default named and unnamed are one run
+    default, rewarped = runs
+    assert default.dirname.startswith("ant_newton_shac_h8_s0_") and default.preset is None
+    assert rewarped.dirname.startswith("ant.rewarped_newton_shac_h8_s0_")
+    assert rewarped.identity()["physics"]["preset"] == "rewarped" != default.identity()["physics"]["preset"]
+    assert rewarped.key != default.key
+
+
 def test_bad_specs_fail_with_one_line(tmp_path):
     cases = {
         "[suite]\nname='x'\n[[train]]\nbackends=['newton']\ntasks=['ant']\nalgos=['shac']\nepoch=3\n": "unknown key",
@@ -85,6 +100,9 @@ def test_bad_specs_fail_with_one_line(tmp_path):
         "[suite]\nname='x'\n[[check]]\nkind='lint'\nbackends=['newton']\ntasks=['ant']\n": "kind must be one of",
         "[suite]\nname='x'\n[[landscape]]\ntask='ant'\nbackend='newton'\n": "selects no run",
         "[suite]\nname = \n": "not valid TOML",
+        "[suite]\nname='x'\n[[train]]\nbackends=['newton']\ntasks=['ant']\nalgos=['shac']\nepochs=3\npreset='x'\n": (
+            "unknown physics preset of ant 'x'"
+        ),
     }
     for text, message in cases.items():
         with pytest.raises(RunError, match=message) as info:

@@ -364,6 +364,16 @@ def test_both_gradient_statistics_have_seed_cis_and_growth(tmp_path):
     assert from16["var_growth_ci_high"] == pytest.approx(math.exp(independent.high))
 
 
+def test_runs_of_another_physics_preset_are_another_task_row(tmp_path):
+    for seed, preset in enumerate(["bench", "bench_kf3000"]):
+        run = make_run(tmp_path, "ant", "newton", "shac", seed, 16, 1.0, [1.0] * EPOCHS)
+        config = json.loads((run / "config.json").read_text())
+        config["physics_record"] = {"preset": preset}
+        (run / "config.json").write_text(json.dumps(config))
+    table = returns_table([load_run(p) for p in collect_runs(tmp_path)])
+    assert sorted(table["task"]) == ["ant", "ant.bench_kf3000"] and list(table["seeds"]) == [1, 1]
+
+
 def test_wall_time_split(suite):
     wall = pd.read_csv(suite["out"] / "wall_time.csv")
     run = _row(wall, backend="newton", algo="shac", horizon=16, seed=0)

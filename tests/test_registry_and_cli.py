@@ -33,6 +33,7 @@ def test_builtin_task_is_found_through_its_entry_point_like_a_plugin_task():
 def test_third_party_entry_point_is_loaded_by_name(monkeypatch):
     fake = EntryPoint(name="thirdparty", value="backends.newton:NewtonSim", group=registry.ENTRY_POINT_GROUP)
     monkeypatch.setattr(simcore, "entry_points", lambda group: [fake] if group == registry.ENTRY_POINT_GROUP else [])
+    monkeypatch.setattr(registry.REGISTRY, "_installed", None)  # read the (patched) entry points again
     assert registry.available() == ["thirdparty"]
     assert registry.get("thirdparty").__name__ == "NewtonSim"
 
@@ -40,6 +41,7 @@ def test_third_party_entry_point_is_loaded_by_name(monkeypatch):
 def test_entry_point_that_is_not_an_adapter_is_refused(monkeypatch):
     fake = EntryPoint(name="bogus", value="tasks.ant:Ant", group=registry.ENTRY_POINT_GROUP)
     monkeypatch.setattr(simcore, "entry_points", lambda group: [fake])
+    monkeypatch.setattr(registry.REGISTRY, "_installed", None)
     with pytest.raises(TypeError, match="not a BatchedSim"):
         registry.get("bogus")
 
