@@ -390,6 +390,11 @@ def returns_table(runs: list[RunRecord]) -> pd.DataFrame:
         base = base_algo(algo)
         base_final = finals.get((task, backend, num_envs, planned, horizon, base)) if base != algo else None
         gain = iqm_difference_with_ci(final, base_final) if base_final is not None else (math.nan,) * 3
+        if base_final is not None and final.size + base_final.size > 2:
+            spread = pooled_std([final, base_final])
+            mde = minimum_detectable_difference(spread, final.size, base_final.size)
+        else:
+            mde = math.nan
         rows.append(
             {
                 "task": task,
@@ -413,6 +418,7 @@ def returns_table(runs: list[RunRecord]) -> pd.DataFrame:
                 "improvement_iqm": gain[0],
                 "improvement_ci_low": gain[1],
                 "improvement_ci_high": gain[2],
+                "mde_80": mde,
             }
         )
     return pd.DataFrame(rows, columns=_RETURNS_COLUMNS)
@@ -440,7 +446,72 @@ _RETURNS_COLUMNS = [
     "improvement_iqm",
     "improvement_ci_low",
     "improvement_ci_high",
+    "mde_80",
 ]
+
+
+# -- statistical power ------------------------------------------------------------------------------
+POWER = 0.8
+ALPHA = 0.05
+#: relative improvements over the base algorithm the paper reports (Ant +25-50%, Go2 about +100%)
+EFFECTS = (0.25, 0.5, 1.0)
+
+
+def pooled_std(samples: Iterable[np.ndarray]) -> float:
+    """The within-sample standard deviation pooled over samples (each weighted by its n - 1)."""
+    samples = [np.asarray(x, dtype=float) for x in samples]
+    dof = sum(x.size - 1 for x in samples if x.size > 1)
+    if dof < 1:
+        return math.nan
+    return math.sqrt(sum(((x - x.mean()) ** 2).sum() for x in samples if x.size > 1) / dof)
+
+
+def minimum_detectable_difference(spread: float, n1: int, n2: int) -> float:
+    """The smallest true difference of means a two-sided two-sample t-test (level ALPHA) detects with
+    probability POWER, for seeds of standard deviation ``spread``: (t_(1-a/2) + t_power) s sqrt(1/n1 + 1/n2)
+    at n1 + n2 - 2 degrees of freedom (the usual normal-shift approximation of the t-test's power)."""
+    dof = n1 + n2 - 2
+    if dof < 1 or not math.isfinite(spread):
+        return math.nan
+    t = stats.t.ppf(1 - ALPHA / 2, dof) + stats.t.ppf(POWER, dof)
+    return float(t * spread * math.sqrt(1 / n1 + 1 / n2))
+
+
+def seeds_needed(spread: float, difference: float, limit: int = 10_000) -> int | None:
+    """Seeds per algorithm for :func:`minimum_detectable_difference` to reach ``difference``; None when
+    the spread is unknown or more than ``limit`` would be needed."""
+    if not (math.isfinite(spread) and math.isfinite(difference) and difference > 0):
+        return None
+    for n in range(2, limit + 1):
+        if minimum_detectable_difference(spread, n, n) <= difference:
+            return n
+    return None
+
+
+def power_table(runs: list[RunRecord]) -> pd.DataFrame:
+    """Per (task, backend, num_envs, planned epochs, horizon) with evaluated runs: the between-seed spread
+    of the final return pooled over its algorithms, the base algorithms' mean return, and the seeds per
+    algorithm a two-sample test needs to detect each relative improvement in EFFECTS at POWER."""
+    groups = _by_group(r for r in runs if r.evaluation is not None)
+    settings: dict[tuple, dict[str, np.ndarray]] = {}
+    for (task, backend, num_envs, planned, horizon, algo), members in groups.items():
+        finals = np.array([r.final_return for r in members], dtype=float)
+        settings.setdefault((task, backend, num_envs, planned, horizon), {})[algo] = finals
+    rows = []
+    for (task, backend, num_envs, planned, horizon), by_algo in settings.items():
+        spread = pooled_std(by_algo.values())
+        bases = [x for a, x in by_algo.items() if base_algo(a) == a]
+        base_mean = float(np.mean(np.concatenate(bases))) if bases else math.nan
+        row = {"task": task, "backend": backend, "num_envs": num_envs, "epochs": planned, "horizon": horizon}
+        row |= {"algos": len(by_algo), "seeds": _value_or_range(x.size for x in by_algo.values())}
+        row |= {"pooled_std": spread, "base_mean": base_mean}
+        row["cv"] = spread / abs(base_mean) if base_mean else math.nan
+        for effect in EFFECTS:
+            row[f"seeds_for_{round(effect * 100)}pct"] = seeds_needed(spread, effect * abs(base_mean))
+        rows.append(row)
+    columns = ["task", "backend", "num_envs", "epochs", "horizon", "algos", "seeds", "pooled_std", "base_mean", "cv"]
+    columns += [f"seeds_for_{round(e * 100)}pct" for e in EFFECTS]
+    return pd.DataFrame(rows, columns=columns)
 
 
 #: the two gradient statistics every variance table and plot shows (algorithms/grad_variance.py):
@@ -1131,9 +1202,23 @@ def returns_document(runs: list[RunRecord]) -> Table:
                     ("vs base", _base_cell),
                     ("IQM improvement", "improvement_iqm"),
                     ("improvement 95% CI", lambda r: _ci(r["improvement_ci_low"], r["improvement_ci_high"])),
+                    ("detectable at 80% power", "mde_80"),
                 ],
                 empty="no run has an eval.json",
-            )
+            ),
+            Section(
+                power_table(runs),
+                _key_columns("task", "backend", "num_envs", "epochs", "horizon", "algos", "seeds")
+                + [
+                    ("between-seed std (pooled)", "pooled_std"),
+                    ("base algorithms' mean", "base_mean"),
+                    ("std / base mean", "cv"),
+                ]
+                + [(f"seeds for +{round(e * 100)}%", f"seeds_for_{round(e * 100)}pct") for e in EFFECTS],
+                heading="Statistical power: seeds per algorithm needed to detect an improvement",
+                csv_suffix="_power",
+                empty="no run has an eval.json",
+            ),
         ],
         [
             "IQM: interquartile mean over training seeds (`scipy.stats.trim_mean(x, 0.25)`, rliable's "
@@ -1145,6 +1230,12 @@ def returns_document(runs: list[RunRecord]) -> Table:
             "IQM improvement: IQM(algo) - IQM(base) at the same task, backend, h, N and epochs (base of shac-tdfixed "
             "and shac-tdadpt is shac, of sapo-tdfixed and sapo-tdadpt sapo), 95% CI from a two-sample unpaired "
             "percentile bootstrap (each algorithm's seeds resampled on their own), n/a under 2 seeds on a side.",
+            "Detectable at 80% power: the smallest true difference of mean final returns between the algorithm "
+            "and its base that a two-sided two-sample t-test at level 0.05 detects with probability 0.8 at the "
+            "seeds they have, (t_0.975 + t_0.8) s sqrt(1/n1 + 1/n2), s the pair's pooled between-seed std; an "
+            "improvement below it is not evidence either way. Power table: the std pooled over every algorithm "
+            "of a setting, and the seeds per algorithm at which that test detects +25%, +50% and +100% of the base "
+            "algorithms' (shac, sapo) mean return (blank: over 10,000).",
             "Runs without eval.json (unfinished) are left out of this table.",
         ],
         _run_commits(evaluated),

@@ -24,7 +24,10 @@ from harness.bench_report import (
     iqm_difference_with_ci,
     learning_curve_frame,
     load_run,
+    minimum_detectable_difference,
+    power_table,
     returns_table,
+    seeds_needed,
     write_bench_report,
 )
 
@@ -372,6 +375,35 @@ def test_runs_of_another_physics_preset_are_another_task_row(tmp_path):
         (run / "config.json").write_text(json.dumps(config))
     table = returns_table([load_run(p) for p in collect_runs(tmp_path)])
     assert sorted(table["task"]) == ["ant", "ant.bench_kf3000"] and list(table["seeds"]) == [1, 1]
+
+
+def test_minimum_detectable_difference_has_the_power_it_claims():
+    # s = 1, 5 seeds a side: (t_0.975 + t_0.8 at 8 dof) sqrt(2/5)
+    mde = minimum_detectable_difference(1.0, 5, 5)
+    assert mde == pytest.approx((stats.t.ppf(0.975, 8) + stats.t.ppf(0.8, 8)) * math.sqrt(0.4))
+    for n1, n2 in ((3, 3), (5, 5), (10, 4)):
+        d = minimum_detectable_difference(2.0, n1, n2)
+        dof, shift = n1 + n2 - 2, d / (2.0 * math.sqrt(1 / n1 + 1 / n2))
+        crit = stats.t.ppf(0.975, dof)
+        exact = stats.nct.sf(crit, dof, shift) + stats.nct.cdf(-crit, dof, shift)  # the t-test's true power
+        assert exact == pytest.approx(0.8, abs=0.03)
+    n = seeds_needed(1.0, 1.0)
+    assert minimum_detectable_difference(1.0, n, n) <= 1.0 < minimum_detectable_difference(1.0, n - 1, n - 1)
+    assert seeds_needed(float("nan"), 1.0) is None
+
+
+def test_power_table_pools_the_spread_of_a_setting(suite):
+    runs = [load_run(p) for p in collect_runs(suite["root"])]
+    power = power_table(runs)
+    h16 = _row(power, task="ant", backend="newton", horizon=16, num_envs=4)
+    spread = math.sqrt((np.var(SHAC_FINALS, ddof=1) * 4 + np.var(TDADPT_FINALS, ddof=1) * 4) / 8)
+    assert h16["pooled_std"] == pytest.approx(spread)
+    assert h16["base_mean"] == pytest.approx(np.mean(SHAC_FINALS))
+    assert h16["seeds_for_100pct"] == seeds_needed(spread, np.mean(SHAC_FINALS))
+    returns = returns_table(runs)
+    tdadpt = _row(returns, algo="shac-tdadpt", backend="newton", horizon=16)
+    assert tdadpt["mde_80"] == pytest.approx(minimum_detectable_difference(spread, 5, 5))
+    assert (suite["out"] / "returns_power.csv").is_file()
 
 
 def test_wall_time_split(suite):
