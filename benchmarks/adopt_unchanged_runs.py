@@ -12,9 +12,9 @@ differs in float32 summation order (captured graphs, fused checks), so they are 
 The tolerance is measured, not chosen: ``--control`` replays runs of a task whose physics did change
 (the Ant: semi-implicit then, Featherstone now), and a run is adopted only if each statistic's
 relative difference is ``--margin`` times smaller than the smallest difference the controls show in
-it (the least a real physics change moved that statistic). An adopted run is copied to its new address, its config.json
-gains today's physics record and an ``adopted`` entry (old address, commit, differences), and every
-run checked is listed in ``STORE/adopted.json``.
+it (the least a real physics change moved that statistic). An adopted run is copied to its new
+address, its config.json gains today's physics record and an ``adopted`` entry (old address, the
+evidence, the command), and every run checked is listed in ``STORE/adopted.json``.
 
     PYTHONPATH=. python benchmarks/adopt_unchanged_runs.py --profile standard --old OLD_STORE/standard \\
         --store results/bench --tasks go2 soft_jumper --backend newton --control ant

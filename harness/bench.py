@@ -12,13 +12,15 @@
   AlgoConfig field under ``[train.hyperparameters]``; ``[train.per_task.TASK]`` overrides
   ``epochs``, ``num_envs``, ``horizons``, ``seeds``, ``preset`` or hyperparameters for one task, and
   ``[train.eval]`` the evaluation protocol for the block (``seeds = 0``: no evaluation);
-* ``[[check]]``: ``kind`` (gradcheck, throughput, crosscheck, parity), ``backends``, ``tasks`` and the verb's
-  extra ``args`` (a list of command-line words), optionally ``[check.per_task.TASK]`` with ``args``;
+* ``[[check]]``: ``kind`` (gradcheck, throughput, crosscheck, parity, contact-jacobians), ``backends``,
+  ``tasks`` and the verb's extra ``args`` (a list of command-line words), optionally
+  ``[check.per_task.TASK]`` with ``args``;
 * ``[[sim_to_sim]]``: runs of the train grid (``task``, ``train_backend``, ``algos``, ``seeds``,
-  ``horizon``, ``preset``) evaluated on ``train_backend`` and ``eval_backend`` with one protocol (``eval_seeds``,
-  ``num_envs``, ``max_steps``);
-* ``[[landscape]]``: runs of the grid (``task``, ``backend``, ``algos``, ``seeds``, ``horizon``, ``preset``) whose
-  h-step and TD-lambda actor losses are mapped over a ``grid`` x ``grid`` plane (``span``, ``num_envs``).
+  ``horizon``, ``preset``) evaluated on ``train_backend`` and ``eval_backend`` with one protocol
+  (``eval_seeds``, ``num_envs``, ``max_steps``);
+* ``[[landscape]]``: runs of the grid (``task``, ``backend``, ``algos``, ``seeds``, ``horizon``,
+  ``preset``) whose h-step and TD-lambda actor losses are mapped over a ``grid`` x ``grid`` plane
+  (``span``, ``num_envs``).
 
 Layout: ``STORE/NAME/`` (``--store``, default ``results/bench``; NAME is the spec's ``[suite] name``)
 holds the tables and plots, ``runs/``, ``checks/`` and ``logs/``. Give two specs the same name (or
@@ -55,7 +57,7 @@ from harness.claims import Claim
 from harness.results import RunError, RunStopped
 
 PROFILES_DIR = Path(__file__).resolve().parent / "profiles"
-CHECK_KINDS = ("gradcheck", "throughput", "crosscheck", "parity")
+CHECK_KINDS = ("gradcheck", "throughput", "crosscheck", "parity", "contact-jacobians")
 MULTI_BACKEND_KINDS = ("crosscheck", "parity")  # one job over all of a block's backends
 
 # Seconds per env step of a training epoch (simulation with gradients and the updates) on this 2-core
@@ -76,7 +78,13 @@ _SECONDS_PER_EVAL_STEP = {
     ("mujoco_warp", "go2"): 6e-3,
     ("mujoco_warp", "soft_jumper"): 1.0,
 }
-_CHECK_SECONDS = {"gradcheck": 40.0, "throughput": 60.0, "crosscheck": 60.0, "parity": 120.0}
+_CHECK_SECONDS = {
+    "gradcheck": 40.0,
+    "throughput": 60.0,
+    "crosscheck": 60.0,
+    "parity": 120.0,
+    "contact-jacobians": 300.0,
+}
 _STARTUP_S = 12.0  # a job's process start, imports and model build (Warp kernels cached)
 
 

@@ -272,6 +272,8 @@ def _check_kind(name: str, result: dict) -> str:
         return "crosscheck"
     if "gaps" in result and "holds" in result:
         return "parity"
+    if "control_lifted" in result:
+        return "contact-jacobians"
     if "com" in result and "pairs" in result:
         return "forward-crosscheck"
     return name.split("_", 1)[0] if "_" in name else "unknown"
@@ -949,6 +951,12 @@ def check_summary(check: CheckRecord) -> str:
             f"engines: settle height gap {_fmt(g.get('settle_height_m'))} m, joint gap "
             f"{_fmt(g.get('settle_joint_rad'))} rad, first-episode length gap {_fmt(g.get('episode_length_rel'))} "
             "(relative)"
+        )
+    if check.kind == "contact-jacobians":
+        a, c = r.get("all", {}), r.get("control_lifted", {})
+        return (
+            f"Jacobians at {a.get('states')} states in contact: median rel. error {_fmt(a.get('median_rel_error'))}, "
+            f"{_pct(a.get('within_20pct'))} within 20%; lifted control {_fmt(c.get('median_rel_error'))}"
         )
     if check.kind == "forward-crosscheck":
         _, gap = _pairs_summary(r.get("pairs", {}), ("", "com_distance_max"))

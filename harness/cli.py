@@ -1,10 +1,11 @@
 """``python -m harness VERB ...``: the benchmark's command line.
 
 Verbs: ``list``, ``gradcheck``, ``throughput``, ``train`` (and ``train --resume DIR``), ``eval``,
-``report``, ``sweep``, ``grad-growth``, ``crosscheck``, ``solver-probe``, ``fd-schemes``, ``scaling``,
-``scaling-plot``, ``bench`` (the suite), ``bench-run`` (one of its runs), ``landscape``. Every flag is declared once
-in :data:`FLAGS` (type, default, help) and every hyperparameter flag is generated from
-:class:`algorithms.config.AlgoConfig`, whose field docs are the ``--help`` text. Bad input (an
+``report``, ``sweep``, ``grad-growth``, ``crosscheck``, ``parity``, ``contact-jacobians``, ``solver-probe``,
+``fd-schemes``, ``scaling``, ``scaling-plot``, ``bench`` (the suite), ``bench-run`` (one of its runs),
+``landscape``. Every flag is declared once in :data:`FLAGS` (type, default, help) and every
+hyperparameter flag is generated from :class:`algorithms.config.AlgoConfig`, whose field docs are
+the ``--help`` text. Bad input (an
 unknown backend or task, an invalid number or configuration) prints one ``error:`` line and exits 2.
 
 Why argparse and not tyro (the CLI library CleanRL uses): tyro reports a bad value in a
@@ -161,6 +162,7 @@ VERB_DEFAULTS: dict[str, dict] = {
     "gradcheck": {"num_envs": 2},  # finite differences perturb every env at once: 2 envs say as much as 64
     "crosscheck": {"num_envs": 4},
     "parity": {"num_envs": 64, "steps": 100, "max_steps": 300, "backends": ["newton", "mujoco_warp"]},
+    "contact-jacobians": {"num_envs": 8},
     "throughput": {"num_envs": 64, "horizon": 32, "windows": 5},
     "sweep": {"num_envs": 64, "horizon": 32},
     "grad-growth": {"windows": 3},
@@ -306,6 +308,15 @@ def build_parser() -> argparse.ArgumentParser:
         "out",
         required=("task",),
     )
+
+    p = sub.add_parser(
+        "contact-jacobians",
+        help="per-step Jacobians at states in contact against a reference (MuJoCo C float64, or Newton's own "
+        "differences swept over step sizes), with the same states lifted clear of the ground as a control",
+    )
+    _add(p, "contact-jacobians", "backend", "task", "preset", "num_envs", "seed", "out", required=("backend", "task"))
+    p.add_argument("--states", type=_positive_int, default=200, help="states in contact compared (default 200)")
+    p.add_argument("--stride", type=_positive_int, default=5, help="steps between sampled states of an env")
 
     p = sub.add_parser("throughput", help="env-steps/s forward-only and forward+backward, and the bare engine")
     _add(
@@ -881,6 +892,40 @@ def cmd_parity(args) -> int:
     return 0
 
 
+def cmd_contact_jacobians(args) -> int:
+    from pathlib import Path
+
+    from harness.contact_jacobians import contact_jacobians, table
+    from harness.results import atomic_write_text, provenance, write_json
+
+    _validate_names(args.backend, args.task)
+    if args.out:
+        _check_output_file(args.out)
+    _check_preset(args.task, args.preset)
+    try:
+        result = contact_jacobians(
+            args.task,
+            args.backend,
+            states=args.states,
+            num_envs=args.num_envs,
+            stride=args.stride,
+            seed=args.seed,
+            preset=args.preset,
+            progress=lambda line: print(line, flush=True),
+        )
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
+    text = table(result)
+    print(text)
+    if args.out:
+        out = Path(args.out)
+        stem = out.with_suffix("") if out.suffix == ".json" else out
+        payload = {"result": result, "provenance": provenance(_command())}
+        print(f"wrote {write_json(stem.with_suffix('.json'), payload)}")
+        print(f"wrote {atomic_write_text(stem.with_suffix('.md'), text)}")
+    return 0
+
+
 def cmd_crosscheck(args) -> int:
     import json
 
@@ -1012,6 +1057,7 @@ VERBS = {
     "grad-growth": cmd_grad_growth,
     "crosscheck": cmd_crosscheck,
     "parity": cmd_parity,
+    "contact-jacobians": cmd_contact_jacobians,
     "solver-probe": cmd_solver_probe,
     "bench": cmd_bench,
     "bench-run": cmd_bench_run,

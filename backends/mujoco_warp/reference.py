@@ -19,9 +19,10 @@ import numpy as np
 import torch
 
 
-def c_control_step(sim, qpos: np.ndarray, qvel: np.ndarray, control: torch.Tensor, data=None) -> np.ndarray:
-    """Next ``[qpos, qvel]`` of one control step on MuJoCo C in float64 (one world)."""
-    model = sim.mjm
+def c_control_step(sim, qpos: np.ndarray, qvel: np.ndarray, control: torch.Tensor, data=None, model=None) -> np.ndarray:
+    """Next ``[qpos, qvel]`` of one control step on MuJoCo C in float64 (one world), on the adapter's
+    model or on ``model`` (the same model with other solver settings)."""
+    model = model if model is not None else sim.mjm
     data = data if data is not None else mujoco.MjData(model)
     layout, phys = sim.layout, sim.task.physics
     root_q, root_v = layout.nq - layout.num_dofs, layout.nv - layout.num_dofs
@@ -39,9 +40,10 @@ def c_control_step(sim, qpos: np.ndarray, qvel: np.ndarray, control: torch.Tenso
     return np.concatenate((data.qpos, data.qvel))
 
 
-def float64_step_jacobians(sim, engine: torch.Tensor, control: torch.Tensor, eps: float = 1e-6):
+def float64_step_jacobians(sim, engine: torch.Tensor, control: torch.Tensor, eps: float = 1e-6, model=None):
     """(next engine (D,), d next / d tangent state (D, 2 nv), d next / d control (D, J)) of one env's
-    control step, by float64 central differences of :func:`c_control_step` with step ``eps``."""
+    control step, by float64 central differences of :func:`c_control_step` with step ``eps`` (on
+    ``model`` when given)."""
     if sim.soft:
         raise ValueError("the float64 reference covers articulated tasks (soft bodies have their own check)")
     engine = engine.detach().to(torch.float64).reshape(1, -1)
@@ -50,9 +52,13 @@ def float64_step_jacobians(sim, engine: torch.Tensor, control: torch.Tensor, eps
     eye = torch.eye(coords, dtype=torch.float64)
     deltas = torch.cat((torch.zeros(1, coords, dtype=torch.float64), eps * eye, -eps * eye))
     qpos, qvel, controls = sim._retract(engine, control, deltas)
-    data = mujoco.MjData(sim.mjm)
+    model = model if model is not None else sim.mjm
+    data = mujoco.MjData(model)
     outputs = np.stack(
-        [c_control_step(sim, qpos[k].numpy(), qvel[k].numpy(), controls[k], data) for k in range(deltas.shape[0])]
+        [
+            c_control_step(sim, qpos[k].numpy(), qvel[k].numpy(), controls[k], data, model)
+            for k in range(deltas.shape[0])
+        ]
     )
     jac = (outputs[1 : 1 + coords] - outputs[1 + coords :]).T / (2.0 * eps)
     state_cols = 2 * sim.layout.nv

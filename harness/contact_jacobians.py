@@ -1,0 +1,337 @@
+"""Per-step Jacobians checked where training runs: at states sampled in contact.
+
+``gradcheck`` differentiates a contact-free segment, where a step is smooth and a finite difference
+is an exact reference. Training runs on the ground. This check samples states from real rollouts
+(random actions after a settle, every ``stride`` steps, each env one trajectory, reset when it
+terminates as in training), keeps those MuJoCo C finds in contact, and compares, at each state, the
+Jacobian of the next state with respect to the state and the actions with a reference:
+
+* **MuJoCo-Warp**: the adapter's own finite-difference Jacobians (:meth:`MujocoWarpSim.fd_jacobians`,
+  what its backward pass multiplies by) against MuJoCo C in float64 on the same model and state,
+  central differences with a 1e-6 step (:func:`backends.mujoco_warp.reference.float64_step_jacobians`),
+  with the solver's tolerance set to 0 so that every solve runs its full iteration count and nominal
+  and perturbed solves are comparable (the warm start is zeroed in both, as in the adapter).
+* **Newton**: the tape's Jacobian (autograd through ``advance``, one backward pass per output
+  coordinate) against central differences of the same float32 step, swept over step sizes. Where
+  the step is smooth around a state, the differences of two neighbouring step sizes agree (a
+  plateau) and the tape should agree with them; where they never agree, the step is not smooth at
+  that scale (a contact or limit switching inside the stencil) and no finite difference is a
+  reference.
+
+A control runs beside every check: the same states lifted clear of the ground (root at the task's
+``airborne_height``), where the comparison must agree; it shows that a disagreement in contact is
+the contact's, not the comparison's.
+
+Both are compared in the engine-neutral coordinates the algorithms see, except MuJoCo-Warp's, which
+are the adapter's own tangent coordinates (the ones its finite differences perturb). Newton's input
+columns exclude the root quaternion (a perturbation would leave the unit sphere). Per state: the
+relative Frobenius error ``||J - J_ref|| / ||J_ref||`` and the cosine of the flattened matrices.
+
+Each state is also classified by MuJoCo C on the task's model (stepped through the same control
+step): whether it is in contact, whether a contact is made or broken during the step (onset), and
+whether a joint limit is active. A state counts as agreeing at 5% (or 20%) relative error.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from harness.envs import make_sim
+
+#: Newton's finite-difference step sizes (float32: round-off grows as the step shrinks)
+NEWTON_EPS = (1e-2, 3e-3, 1e-3, 3e-4, 1e-4)
+#: two neighbouring step sizes whose differences agree this closely bound a plateau
+PLATEAU = 0.05
+THRESHOLDS = (0.05, 0.2)
+
+
+def sample_contact_states(sim, count: int, settle: int, stride: int, seed: int, action_scale: float, in_contact):
+    """(q, qd, actions) of ``count`` states in contact from the env's own dynamics (an env that
+    terminates is reset, as in training): every env settles ``settle`` zero-action steps, then takes
+    random actions U(-s, s); every ``stride`` steps each env's state, and the action taken there, is
+    kept if ``in_contact(q, qd, action)`` says so."""
+    from tasks.env import TaskEnv
+
+    env = TaskEnv(sim.task, sim)
+    gen = torch.Generator().manual_seed(seed)
+    env.reset()
+    zeros = torch.zeros(sim.num_envs, sim.task.action_dim)
+    qs, qds, acts = [], [], []
+    with torch.no_grad():
+        for _ in range(settle):
+            env.step(zeros)
+        step = 0
+        while len(qs) < count:
+            actions = action_scale * (2.0 * torch.rand(sim.num_envs, sim.task.action_dim, generator=gen) - 1.0)
+            if step % stride == 0:
+                q, qd = sim.state.joint_q.detach().clone(), sim.state.joint_qd.detach().clone()
+                for i in range(sim.num_envs):
+                    if len(qs) < count and in_contact(q[i : i + 1], qd[i : i + 1], actions[i : i + 1]):
+                        qs.append(q[i])
+                        qds.append(qd[i])
+                        acts.append(actions[i])
+            env.step(actions)
+            step += 1
+            if step > 200 * count:
+                raise RuntimeError(f"{sim.task.name}: found {len(qs)} of {count} states in contact")
+    return torch.stack(qs), torch.stack(qds), torch.stack(acts)
+
+
+def compare(jac: np.ndarray, ref: np.ndarray) -> tuple[float, float]:
+    """(relative Frobenius error, cosine) of ``jac`` against ``ref``."""
+    a, b = jac.ravel().astype(np.float64), ref.ravel().astype(np.float64)
+    nb = float(np.linalg.norm(b))
+    rel = float(np.linalg.norm(a - b) / nb) if nb > 0 else math.inf
+    denom = float(np.linalg.norm(a)) * nb
+    return rel, float(a @ b / denom) if denom > 0 else math.nan
+
+
+# -- MuJoCo C: classification and the float64 reference --------------------------------------------
+def _accurate_model(mjm):
+    import copy
+
+    model = copy.copy(mjm)
+    model.opt.tolerance = 0.0  # every solve runs its full iteration count
+    model.opt.ls_tolerance = 0.0
+    return model
+
+
+def classify(mjw_sim, model, engine: torch.Tensor, control: torch.Tensor) -> dict:
+    """What MuJoCo C sees during one control step from ``engine`` (one env): contacts at the start,
+    a contact made or broken during the step, an active joint limit."""
+    import mujoco
+
+    layout, phys = mjw_sim.layout, mjw_sim.task.physics
+    root_q, root_v = layout.nq - layout.num_dofs, layout.nv - layout.num_dofs
+    qpos, qvel = (x.double().numpy() for x in mjw_sim._split(engine.reshape(1, -1).double()))
+    data = mujoco.MjData(model)
+    data.qpos[:], data.qvel[:] = qpos[0], qvel[0]
+    control = control.double()
+    counts, limits = [], False
+    for _ in range(phys.substeps):
+        if mjw_sim.position_control:
+            hinge_q = torch.from_numpy(data.qpos[root_q:].copy())
+            hinge_qd = torch.from_numpy(data.qvel[root_v:].copy())
+            data.qfrc_applied[root_v:] = phys.pd_torque(control, hinge_q, hinge_qd).numpy()
+        else:
+            data.qfrc_applied[root_v:] = control.numpy()
+        mujoco.mj_step(model, data)
+        counts.append(int(data.ncon))
+        limits |= bool(np.any(data.efc_type[: data.nefc] == mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT))
+    return {"contacts": counts[0], "onset": len(set(counts)) > 1, "limit": limits}
+
+
+def _mujoco_warp_rows(sim, model, q, qd, actions, progress) -> list[dict]:
+    from backends.mujoco_warp.reference import float64_step_jacobians
+
+    rows = []
+    n = sim.num_envs
+    for start in range(0, q.shape[0], n):
+        qb, qdb, ab = q[start : start + n], qd[start : start + n], actions[start : start + n]
+        engine = sim.state_from_generalized(qb, qdb).engine.detach()
+        control = sim.task.actions_to_control(ab)
+        _, jac_state, jac_control = sim.fd_jacobians(engine, control)
+        for i in range(engine.shape[0]):
+            _, ref_state, ref_control = float64_step_jacobians(sim, engine[i], control[i], model=model)
+            jac = np.concatenate((jac_state[i].numpy(), jac_control[i].numpy()), axis=1)
+            rel, cos = compare(jac, np.concatenate((ref_state, ref_control), axis=1))
+            rows.append({"rel_error": rel, "cosine": cos, **classify(sim, model, engine[i], control[i])})
+        progress(f"  {len(rows)}/{q.shape[0]} states")
+    return rows
+
+
+# -- Newton: the tape against a step-size sweep ---------------------------------------------------
+def _input_columns(layout) -> torch.Tensor:
+    """Indices of (q, qd) whose perturbation stays a valid state: all but the root quaternion."""
+    total = layout.nq + layout.nv
+    skip = set(range(3, 7)) if layout.floating_base else set()
+    return torch.tensor([i for i in range(total) if i not in skip])
+
+
+def _newton_rows(sim, mjw_sim, model, q, qd, actions, eps_sweep, progress) -> list[dict]:
+    layout = sim.layout
+    nq = layout.nq
+    cols = _input_columns(layout)
+    n = sim.num_envs
+    rows = []
+
+    def step(x_state: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
+        state = sim.state_from_generalized(x_state[:, :nq], x_state[:, nq:])
+        nxt = sim.advance(state, a)
+        return torch.cat((nxt.joint_q, nxt.joint_qd), dim=1)
+
+    for start in range(0, q.shape[0], n):
+        x = torch.cat((q[start : start + n], qd[start : start + n]), dim=1).detach()
+        a = actions[start : start + n].detach()
+        # the tape: one backward pass per output coordinate, every env at once (envs are independent)
+        xs, av = x.clone().requires_grad_(True), a.clone().requires_grad_(True)
+        out = step(xs, av)
+        tape = torch.zeros(n, out.shape[1], cols.numel() + a.shape[1], dtype=torch.float64)
+        for d in range(out.shape[1]):
+            gx, ga = torch.autograd.grad(out[:, d].sum(), (xs, av), retain_graph=d + 1 < out.shape[1])
+            tape[:, d] = torch.cat((gx[:, cols], ga), dim=1).double()
+        fds = []
+        with torch.no_grad():
+            for eps in eps_sweep:
+                fd = torch.zeros_like(tape)
+                for j in range(cols.numel() + a.shape[1]):
+                    if j < cols.numel():
+                        plus, minus = x.clone(), x.clone()
+                        plus[:, cols[j]] += eps
+                        minus[:, cols[j]] -= eps
+                        diff = step(plus, a) - step(minus, a)
+                    else:
+                        plus, minus = a.clone(), a.clone()
+                        plus[:, j - cols.numel()] += eps
+                        minus[:, j - cols.numel()] -= eps
+                        diff = step(x, plus) - step(x, minus)
+                    fd[:, :, j] = diff.double() / (2.0 * eps)
+                fds.append(fd)
+        engine = mjw_sim.state_from_generalized(x[:, :nq], x[:, nq:]).engine.detach()
+        control = mjw_sim.task.actions_to_control(a)
+        for i in range(n):
+            per_eps = [compare(tape[i].numpy(), fd[i].numpy()) for fd in fds]
+            # a plateau: two neighbouring step sizes whose differences agree; the tape against the
+            # first such pair's smaller step
+            plateau = None
+            for k in range(len(fds) - 1):
+                if compare(fds[k][i].numpy(), fds[k + 1][i].numpy())[0] < PLATEAU:
+                    plateau = k + 1
+                    break
+            rel, cos = per_eps[plateau] if plateau is not None else min(per_eps)
+            rows.append(
+                {
+                    "rel_error": rel,
+                    "cosine": cos,
+                    "plateau_eps": eps_sweep[plateau] if plateau is not None else None,
+                    "rel_error_per_eps": [e for e, _ in per_eps],
+                    **classify(mjw_sim, model, engine[i], control[i]),
+                }
+            )
+        progress(f"  {len(rows)}/{q.shape[0]} states")
+    return rows
+
+
+# -- the check --------------------------------------------------------------------------------------
+def _summary(rows: list[dict]) -> dict:
+    if not rows:
+        return {"states": 0}
+    rel = np.array([r["rel_error"] for r in rows])
+    cos = np.array([r["cosine"] for r in rows], dtype=float)
+    out = {
+        "states": len(rows),
+        "median_rel_error": float(np.median(rel)),
+        "median_cosine": float(np.nanmedian(cos)) if np.isfinite(cos).any() else math.nan,
+    }
+    for t in THRESHOLDS:
+        out[f"within_{round(t * 100)}pct"] = float(np.mean(rel <= t))
+    return out
+
+
+def contact_jacobians(
+    task_name: str,
+    backend: str,
+    states: int = 200,
+    num_envs: int = 8,
+    settle: int = 30,
+    stride: int = 5,
+    seed: int = 0,
+    action_scale: float = 0.5,
+    preset: str | None = None,
+    eps_sweep=NEWTON_EPS,
+    progress=print,
+) -> dict:
+    """The check (module docstring): a summary over all states, per class, and every state's row."""
+    from tasks import make_task
+
+    if backend not in ("newton", "mujoco_warp"):
+        raise ValueError(f"the in-contact check has references for newton and mujoco_warp, not {backend!r}")
+    task = make_task(task_name, preset=preset)
+    if task.layout.num_particles:
+        raise ValueError(f"{task_name}: soft bodies have no MuJoCo C reference; use crosscheck")
+    sim = make_sim(backend, task, num_envs, seed=seed, horizon=4)
+    mjw_sim = sim if backend == "mujoco_warp" else make_sim("mujoco_warp", task, num_envs, seed=seed, horizon=4)
+    model = _accurate_model(mjw_sim.mjm)
+
+    def in_contact(q, qd, action) -> bool:
+        engine = mjw_sim.state_from_generalized(q.expand(mjw_sim.num_envs, -1), qd.expand(mjw_sim.num_envs, -1))
+        return classify(mjw_sim, model, engine.engine[0].detach(), task.actions_to_control(action)[0])["contacts"] > 0
+
+    q, qd, actions = sample_contact_states(sim, states, settle, stride, seed, action_scale, in_contact)
+    lifted = q.clone()
+    if task.layout.floating_base:
+        lifted[:, 2] = task.airborne_height
+    if backend == "mujoco_warp":
+        reference = "MuJoCo C float64, central differences (step 1e-6), solver tolerance 0"
+
+        def check(q_, label):
+            progress(label)
+            return _mujoco_warp_rows(sim, model, q_, qd, actions, progress)
+    else:
+        reference = f"central differences in float32 over steps {list(eps_sweep)}, at the first plateau"
+
+        def check(q_, label):
+            progress(label)
+            return _newton_rows(sim, mjw_sim, model, q_, qd, actions, eps_sweep, progress)
+
+    rows = check(q, "states in contact:")
+    control = check(lifted, f"the same states lifted to {task.airborne_height} m (control):")
+    classes = {
+        "contact made or broken in the step": [r for r in rows if r["onset"]],
+        "joint limit active": [r for r in rows if r["limit"]],
+        "contact, no onset, no limit": [r for r in rows if r["contacts"] > 0 and not r["onset"] and not r["limit"]],
+    }
+    result = {
+        "task": task_name,
+        "backend": backend,
+        "reference": reference,
+        "sampling": {
+            "states": states,
+            "num_envs": num_envs,
+            "settle": settle,
+            "stride": stride,
+            "action_scale": action_scale,
+            "seed": seed,
+        },
+        "all": _summary(rows),
+        "by_class": {name: _summary(members) for name, members in classes.items()},
+        "control_lifted": _summary(control),
+        "control_in_contact": sum(r["contacts"] > 0 for r in control),
+        "rows": rows,
+    }
+    if backend == "newton":
+        plateaus = [r["plateau_eps"] for r in rows]
+        result["plateau_fraction"] = float(np.mean([p is not None for p in plateaus]))
+        result["median_rel_error_per_eps"] = {
+            f"{eps:g}": float(np.median([r["rel_error_per_eps"][k] for r in rows])) for k, eps in enumerate(eps_sweep)
+        }
+    return result
+
+
+def table(result: dict) -> str:
+    """Markdown: the summary and the per-class rows."""
+    head = "| states | n | median rel. error | median cosine | within 5% | within 20% |\n|---|---|---|---|---|---|"
+    lines = [f"{result['task']} on {result['backend']}: reference {result['reference']}", "", head]
+
+    def row(label, s):
+        if not s["states"]:
+            return f"| {label} | 0 | | | | |"
+        return (
+            f"| {label} | {s['states']} | {s['median_rel_error']:.3g} | {s['median_cosine']:.4f} | "
+            f"{s['within_5pct']:.0%} | {s['within_20pct']:.0%} |"
+        )
+
+    lines.append(row("all in contact", result["all"]))
+    lines += [row(name, s) for name, s in result["by_class"].items()]
+    lines.append(row("control: the same states lifted clear of the ground", result["control_lifted"]))
+    if "plateau_fraction" in result:
+        per_eps = ", ".join(f"{k}: {v:.3g}" for k, v in result["median_rel_error_per_eps"].items())
+        lines += [
+            "",
+            f"States with a finite-difference plateau: {result['plateau_fraction']:.0%}; median relative "
+            f"error of the tape against each step size: {per_eps}.",
+        ]
+    return "\n".join(lines) + "\n"

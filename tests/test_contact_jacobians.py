@@ -1,0 +1,38 @@
+"""The in-contact Jacobian check: its control (the same states lifted off the ground) agrees with the
+reference, so a disagreement it reports in contact is the contact's; its sampler keeps only states
+MuJoCo C finds in contact; bad input is refused in one line."""
+
+from __future__ import annotations
+
+import pytest
+
+pytest.importorskip("newton")
+pytest.importorskip("mujoco_warp")
+
+from harness.contact_jacobians import compare, contact_jacobians  # noqa: E402
+from harness.cli import main as cli  # noqa: E402
+
+
+@pytest.mark.parametrize("backend", ["mujoco_warp", "newton"])
+def test_the_lifted_control_agrees_and_every_sampled_state_is_in_contact(backend):
+    result = contact_jacobians("ant", backend, states=2, num_envs=2, settle=10, progress=lambda line: None)
+    assert result["all"]["states"] == 2 and all(row["contacts"] > 0 for row in result["rows"])
+    assert result["control_in_contact"] == 0
+    assert result["control_lifted"]["median_rel_error"] < 1e-2  # smooth off the ground: the comparison is exact
+    for row in result["rows"]:
+        assert -1.0 - 1e-9 <= row["cosine"] <= 1.0 + 1e-9 and row["rel_error"] >= 0.0
+
+
+def test_compare_is_relative_and_scale_free():
+    import numpy as np
+
+    ref = np.arange(6.0).reshape(2, 3)
+    assert compare(ref, ref) == (0.0, pytest.approx(1.0))
+    rel, cos = compare(2.0 * ref, ref)
+    assert rel == pytest.approx(1.0) and cos == pytest.approx(1.0)
+
+
+def test_bad_input_is_one_line(capsys):
+    assert cli(["contact-jacobians", "--backend", "newton", "--task", "soft_jumper", "--states", "2"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "soft bodies" in err
