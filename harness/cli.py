@@ -314,7 +314,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="per-step Jacobians at states in contact against a reference (MuJoCo C float64, or Newton's own "
         "differences swept over step sizes), with the same states lifted clear of the ground as a control",
     )
-    _add(p, "contact-jacobians", "backend", "task", "preset", "num_envs", "seed", "out", required=("backend", "task"))
+    _add(
+        p,
+        "contact-jacobians",
+        *("backend", "task", "preset", "num_envs", "device", "seed", "out"),
+        required=("backend", "task"),
+    )
     p.add_argument("--states", type=_positive_int, default=200, help="states in contact compared (default 200)")
     p.add_argument("--stride", type=_positive_int, default=5, help="steps between sampled states of an env")
 
@@ -899,6 +904,7 @@ def cmd_contact_jacobians(args) -> int:
     from harness.results import atomic_write_text, provenance, write_json
 
     _validate_names(args.backend, args.task)
+    _check_device(args.device)
     if args.out:
         _check_output_file(args.out)
     _check_preset(args.task, args.preset)
@@ -906,6 +912,7 @@ def cmd_contact_jacobians(args) -> int:
         result = contact_jacobians(
             args.task,
             args.backend,
+            device=args.device,
             states=args.states,
             num_envs=args.num_envs,
             stride=args.stride,

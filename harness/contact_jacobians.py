@@ -241,6 +241,7 @@ def contact_jacobians(
     seed: int = 0,
     action_scale: float = 0.5,
     preset: str | None = None,
+    device: str = "cpu",
     eps_sweep=NEWTON_EPS,
     progress=print,
 ) -> dict:
@@ -252,7 +253,7 @@ def contact_jacobians(
     task = make_task(task_name, preset=preset)
     if task.layout.num_particles:
         raise ValueError(f"{task_name}: soft bodies have no MuJoCo C reference; use crosscheck")
-    sim = make_sim(backend, task, num_envs, seed=seed, horizon=4)
+    sim = make_sim(backend, task, num_envs, device=device, seed=seed, horizon=4)
     mjw_sim = sim if backend == "mujoco_warp" else make_sim("mujoco_warp", task, num_envs, seed=seed, horizon=4)
     model = _accurate_model(mjw_sim.mjm)
 

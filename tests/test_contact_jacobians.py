@@ -33,6 +33,10 @@ def test_compare_is_relative_and_scale_free():
 
 
 def test_bad_input_is_one_line(capsys):
-    assert cli(["contact-jacobians", "--backend", "newton", "--task", "soft_jumper", "--states", "2"]) == 2
+    # the suite passes --device to every single-backend check
+    assert (
+        cli(["contact-jacobians", "--backend", "newton", "--task", "soft_jumper", "--device", "cpu", "--states", "2"])
+        == 2
+    )
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "soft bodies" in err
