@@ -705,7 +705,7 @@ def _write_job_file(job: Job) -> None:
     from harness.results import write_json
 
     job.run_dir.mkdir(parents=True, exist_ok=True)
-    payload = {**job.run.identity(), "eval": job.run.eval_settings(), "key": job.run.key}
+    payload = {**job.run.identity(), "eval": job.run.eval_settings(), "key": job.run.key, "preset": job.run.preset}
     write_json(job.run_dir / "job.json", payload)
 
 
@@ -761,7 +761,7 @@ def _train_and_evaluate(run_dir: Path, job: dict, stream) -> None:
             device=job["device"],
             command="python -m harness bench-run " + str(run_dir),
             stream=stream,
-            preset=job["physics"]["preset"],
+            preset=job.get("preset"),  # None: the task's default
         )
     if ev["seeds"]:
         evaluate(run_dir, seeds=ev["seeds"], num_envs=ev["num_envs"], max_steps=ev["max_steps"], stream=stream)

@@ -39,6 +39,8 @@ import math
 import numpy as np
 import torch
 
+# MuJoCo C stays behind the adapter package: the classifier and the accurate-solver model live there
+from backends.mujoco_warp.reference import accurate_model, classify_step
 from harness.envs import make_sim
 
 #: Newton's finite-difference step sizes (float32: round-off grows as the step shrinks)
@@ -89,41 +91,6 @@ def compare(jac: np.ndarray, ref: np.ndarray) -> tuple[float, float]:
     return rel, float(a @ b / denom) if denom > 0 else math.nan
 
 
-# -- MuJoCo C: classification and the float64 reference --------------------------------------------
-def _accurate_model(mjm):
-    import copy
-
-    model = copy.copy(mjm)
-    model.opt.tolerance = 0.0  # every solve runs its full iteration count
-    model.opt.ls_tolerance = 0.0
-    return model
-
-
-def classify(mjw_sim, model, engine: torch.Tensor, control: torch.Tensor) -> dict:
-    """What MuJoCo C sees during one control step from ``engine`` (one env): contacts at the start,
-    a contact made or broken during the step, an active joint limit."""
-    import mujoco
-
-    layout, phys = mjw_sim.layout, mjw_sim.task.physics
-    root_q, root_v = layout.nq - layout.num_dofs, layout.nv - layout.num_dofs
-    qpos, qvel = (x.double().numpy() for x in mjw_sim._split(engine.reshape(1, -1).double()))
-    data = mujoco.MjData(model)
-    data.qpos[:], data.qvel[:] = qpos[0], qvel[0]
-    control = control.double()
-    counts, limits = [], False
-    for _ in range(phys.substeps):
-        if mjw_sim.position_control:
-            hinge_q = torch.from_numpy(data.qpos[root_q:].copy())
-            hinge_qd = torch.from_numpy(data.qvel[root_v:].copy())
-            data.qfrc_applied[root_v:] = phys.pd_torque(control, hinge_q, hinge_qd).numpy()
-        else:
-            data.qfrc_applied[root_v:] = control.numpy()
-        mujoco.mj_step(model, data)
-        counts.append(int(data.ncon))
-        limits |= bool(np.any(data.efc_type[: data.nefc] == mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT))
-    return {"contacts": counts[0], "onset": len(set(counts)) > 1, "limit": limits}
-
-
 def _mujoco_warp_rows(sim, model, q, qd, actions, progress) -> list[dict]:
     from backends.mujoco_warp.reference import float64_step_jacobians
 
@@ -138,7 +105,7 @@ def _mujoco_warp_rows(sim, model, q, qd, actions, progress) -> list[dict]:
             _, ref_state, ref_control = float64_step_jacobians(sim, engine[i], control[i], model=model)
             jac = np.concatenate((jac_state[i].numpy(), jac_control[i].numpy()), axis=1)
             rel, cos = compare(jac, np.concatenate((ref_state, ref_control), axis=1))
-            rows.append({"rel_error": rel, "cosine": cos, **classify(sim, model, engine[i], control[i])})
+            rows.append({"rel_error": rel, "cosine": cos, **classify_step(sim, model, engine[i], control[i])})
         progress(f"  {len(rows)}/{q.shape[0]} states")
     return rows
 
@@ -208,7 +175,7 @@ def _newton_rows(sim, mjw_sim, model, q, qd, actions, eps_sweep, progress) -> li
                     "cosine": cos,
                     "plateau_eps": eps_sweep[plateau] if plateau is not None else None,
                     "rel_error_per_eps": [e for e, _ in per_eps],
-                    **classify(mjw_sim, model, engine[i], control[i]),
+                    **classify_step(mjw_sim, model, engine[i], control[i]),
                 }
             )
         progress(f"  {len(rows)}/{q.shape[0]} states")
@@ -255,11 +222,13 @@ def contact_jacobians(
         raise ValueError(f"{task_name}: soft bodies have no MuJoCo C reference; use crosscheck")
     sim = make_sim(backend, task, num_envs, device=device, seed=seed, horizon=4)
     mjw_sim = sim if backend == "mujoco_warp" else make_sim("mujoco_warp", task, num_envs, seed=seed, horizon=4)
-    model = _accurate_model(mjw_sim.mjm)
+    model = accurate_model(mjw_sim.mjm)
 
     def in_contact(q, qd, action) -> bool:
         engine = mjw_sim.state_from_generalized(q.expand(mjw_sim.num_envs, -1), qd.expand(mjw_sim.num_envs, -1))
-        return classify(mjw_sim, model, engine.engine[0].detach(), task.actions_to_control(action)[0])["contacts"] > 0
+        return (
+            classify_step(mjw_sim, model, engine.engine[0].detach(), task.actions_to_control(action)[0])["contacts"] > 0
+        )
 
     q, qd, actions = sample_contact_states(sim, states, settle, stride, seed, action_scale, in_contact)
     lifted = q.clone()

@@ -161,6 +161,9 @@ def test_finished_runs_are_reused_and_interrupted_ones_resumed(tmp_path):
     payload["epoch"] = 1  # as if stopped after epoch 1: the suite must resume it, not start over
     torch.save(payload, victim / "checkpoint.pt")
     (victim / "eval.json").unlink()
+    # a finished run whose checkpoints were not kept (a store committed to git): done, not retrained
+    for name in ("checkpoint.pt", "checkpoint_init.pt"):
+        (run_dirs[1] / name).unlink()
 
     log.clear()
     assert run_suite(spec_file=str(spec), store=store, stream=Stream()) == 0

@@ -65,4 +65,39 @@ def float64_step_jacobians(sim, engine: torch.Tensor, control: torch.Tensor, eps
     return outputs[0], jac[:, :state_cols], jac[:, state_cols:]
 
 
-__all__ = ["c_control_step", "float64_step_jacobians"]
+def accurate_model(mjm):
+    """A copy of ``mjm`` whose solver runs its full iteration count (tolerances 0): nominal and
+    perturbed solves of a finite difference then stop at the same point."""
+    import copy
+
+    model = copy.copy(mjm)
+    model.opt.tolerance = 0.0
+    model.opt.ls_tolerance = 0.0
+    return model
+
+
+def classify_step(sim, model, engine: torch.Tensor, control: torch.Tensor) -> dict:
+    """What MuJoCo C sees during one control step of one env from ``engine`` on ``model``: the
+    contacts at the start, whether a contact is made or broken during the step (onset), and whether
+    a joint limit is active."""
+    layout, phys = sim.layout, sim.task.physics
+    root_q, root_v = layout.nq - layout.num_dofs, layout.nv - layout.num_dofs
+    qpos, qvel = (x.double().numpy() for x in sim._split(engine.reshape(1, -1).double()))
+    data = mujoco.MjData(model)
+    data.qpos[:], data.qvel[:] = qpos[0], qvel[0]
+    control = control.double()
+    counts, limits = [], False
+    for _ in range(phys.substeps):
+        if sim.position_control:
+            hinge_q = torch.from_numpy(data.qpos[root_q:].copy())
+            hinge_qd = torch.from_numpy(data.qvel[root_v:].copy())
+            data.qfrc_applied[root_v:] = phys.pd_torque(control, hinge_q, hinge_qd).numpy()
+        else:
+            data.qfrc_applied[root_v:] = control.numpy()
+        mujoco.mj_step(model, data)
+        counts.append(int(data.ncon))
+        limits |= bool(np.any(data.efc_type[: data.nefc] == mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT))
+    return {"contacts": counts[0], "onset": len(set(counts)) > 1, "limit": limits}
+
+
+__all__ = ["accurate_model", "c_control_step", "classify_step", "float64_step_jacobians"]
