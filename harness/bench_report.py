@@ -1183,6 +1183,11 @@ def _run_commits(runs: Iterable[RunRecord]) -> list[str]:
     return _commits(r.commit for r in runs)
 
 
+def _whole(column: str):
+    """A cell of whole numbers from a column that pandas holds as floats (it has missing values)."""
+    return lambda r: "n/a" if _is_missing(r[column]) else str(int(r[column]))
+
+
 def returns_document(runs: list[RunRecord]) -> Table:
     """Final evaluation returns: IQM, CI and improvement over the base algorithm."""
     evaluated = [r for r in runs if r.evaluation is not None]
@@ -1222,7 +1227,7 @@ def returns_document(runs: list[RunRecord]) -> Table:
                     ("base algorithms' mean", "base_mean"),
                     ("std / base mean", "cv"),
                 ]
-                + [(f"seeds for +{round(e * 100)}%", f"seeds_for_{round(e * 100)}pct") for e in EFFECTS],
+                + [(f"seeds for +{round(e * 100)}%", _whole(f"seeds_for_{round(e * 100)}pct")) for e in EFFECTS],
                 heading="Statistical power: seeds per algorithm needed to detect an improvement",
                 csv_suffix="_power",
                 empty="no run has an eval.json",
