@@ -302,22 +302,29 @@ def _iqm_along(sample: np.ndarray, axis: int = -1) -> np.ndarray:
     return stats.trim_mean(sample, IQM_TRIM, axis=axis)
 
 
+def _percentile_ci(samples: tuple[np.ndarray, ...], statistic) -> tuple[float, float]:
+    """The 95% percentile-bootstrap interval of ``statistic`` (vectorised, ``axis``) over ``samples``,
+    each resampled on its own (unpaired), with the report's fixed resamples and seed."""
+    ci = stats.bootstrap(
+        samples,
+        statistic,
+        vectorized=True,
+        paired=False,
+        n_resamples=BOOTSTRAP_RESAMPLES,
+        confidence_level=CONFIDENCE,
+        method="percentile",
+        rng=np.random.default_rng(BOOTSTRAP_SEED),
+    ).confidence_interval
+    return float(ci.low), float(ci.high)
+
+
 def iqm_with_ci(values: Iterable[float]) -> tuple[float, float, float]:
     """(IQM, CI low, CI high): 95% percentile bootstrap over the values (seeds); NaN bounds under 2 values."""
     x = np.asarray(list(values), dtype=float)
     point = iqm(x)
     if x.size < 2:
         return point, math.nan, math.nan
-    ci = stats.bootstrap(
-        (x,),
-        _iqm_along,
-        vectorized=True,
-        n_resamples=BOOTSTRAP_RESAMPLES,
-        confidence_level=CONFIDENCE,
-        method="percentile",
-        rng=np.random.default_rng(BOOTSTRAP_SEED),
-    ).confidence_interval
-    return point, float(ci.low), float(ci.high)
+    return point, *_percentile_ci((x,), _iqm_along)
 
 
 def iqm_difference_with_ci(variant: Iterable[float], base: Iterable[float]) -> tuple[float, float, float]:
@@ -330,17 +337,7 @@ def iqm_difference_with_ci(variant: Iterable[float], base: Iterable[float]) -> t
     point = iqm(v) - iqm(b)
     if v.size < 2 or b.size < 2:
         return point, math.nan, math.nan
-    ci = stats.bootstrap(
-        (v, b),
-        lambda x, y, axis=-1: _iqm_along(x, axis) - _iqm_along(y, axis),
-        vectorized=True,
-        paired=False,
-        n_resamples=BOOTSTRAP_RESAMPLES,
-        confidence_level=CONFIDENCE,
-        method="percentile",
-        rng=np.random.default_rng(BOOTSTRAP_SEED),
-    ).confidence_interval
-    return point, float(ci.low), float(ci.high)
+    return point, *_percentile_ci((v, b), lambda x, y, axis=-1: _iqm_along(x, axis) - _iqm_along(y, axis))
 
 
 # -- grouping helpers -----------------------------------------------------------------------------
@@ -536,16 +533,8 @@ def geometric_mean_with_ci(values: Iterable[float]) -> tuple[float, float, float
     point = float(np.exp(logs.mean()))
     if x.size < 2 or not np.isfinite(logs).all():
         return point, math.nan, math.nan
-    ci = stats.bootstrap(
-        (logs,),
-        np.mean,
-        vectorized=True,
-        n_resamples=BOOTSTRAP_RESAMPLES,
-        confidence_level=CONFIDENCE,
-        method="percentile",
-        rng=np.random.default_rng(BOOTSTRAP_SEED),
-    ).confidence_interval
-    return point, float(np.exp(ci.low)), float(np.exp(ci.high))
+    low, high = _percentile_ci((logs,), np.mean)
+    return point, math.exp(low), math.exp(high)
 
 
 def ratio_of_geometric_means_with_ci(high: Iterable[float], low: Iterable[float]) -> tuple[float, float, float]:
@@ -559,17 +548,8 @@ def ratio_of_geometric_means_with_ci(high: Iterable[float], low: Iterable[float]
         point = float(np.exp(lh.mean() - ll.mean()))
     if h.size < 2 or lo.size < 2 or not (np.isfinite(lh).all() and np.isfinite(ll).all()):
         return point, math.nan, math.nan
-    ci = stats.bootstrap(
-        (lh, ll),
-        lambda x, y, axis=-1: np.mean(x, axis=axis) - np.mean(y, axis=axis),
-        vectorized=True,
-        paired=False,
-        n_resamples=BOOTSTRAP_RESAMPLES,
-        confidence_level=CONFIDENCE,
-        method="percentile",
-        rng=np.random.default_rng(BOOTSTRAP_SEED),
-    ).confidence_interval
-    return point, float(np.exp(ci.low)), float(np.exp(ci.high))
+    low, high = _percentile_ci((lh, ll), lambda x, y, axis=-1: np.mean(x, axis=axis) - np.mean(y, axis=axis))
+    return point, math.exp(low), math.exp(high)
 
 
 def _seed_medians(members: list[RunRecord], metric: str) -> np.ndarray:

@@ -856,10 +856,7 @@ def sim_physics(sim) -> dict:
 
 
 def cmd_parity(args) -> int:
-    from pathlib import Path
-
     from harness.parity import parity, plot, table
-    from harness.results import atomic_write_text, provenance, write_json
 
     _validate_names(task=args.task)
     for name in args.backends:
@@ -887,21 +884,27 @@ def cmd_parity(args) -> int:
     print(text)
     print(f"targets {'all hold' if result['passed'] else 'not all hold'}: {result['holds']}")
     if args.out:
-        out = Path(args.out)
-        stem = out.with_suffix("") if out.suffix == ".json" else out
-        print(
-            f"wrote {write_json(stem.with_suffix('.json'), {'result': result, 'provenance': provenance(_command())})}"
-        )
-        print(f"wrote {atomic_write_text(stem.with_suffix('.md'), text)}")
+        stem = _write_result_and_table(args.out, result, text)
         print(f"wrote {plot(result, stem.with_suffix('.png'))}")
     return 0
 
 
-def cmd_contact_jacobians(args) -> int:
+def _write_result_and_table(out: str, result: dict, text: str):
+    """``STEM.json`` (the result and its provenance) and ``STEM.md`` (``text``), STEM being ``out``
+    without a ``.json`` suffix; returns STEM."""
     from pathlib import Path
 
-    from harness.contact_jacobians import contact_jacobians, table
     from harness.results import atomic_write_text, provenance, write_json
+
+    out = Path(out)
+    stem = out.with_suffix("") if out.suffix == ".json" else out
+    print(f"wrote {write_json(stem.with_suffix('.json'), {'result': result, 'provenance': provenance(_command())})}")
+    print(f"wrote {atomic_write_text(stem.with_suffix('.md'), text)}")
+    return stem
+
+
+def cmd_contact_jacobians(args) -> int:
+    from harness.contact_jacobians import contact_jacobians, table
 
     _validate_names(args.backend, args.task)
     _check_device(args.device)
@@ -925,11 +928,7 @@ def cmd_contact_jacobians(args) -> int:
     text = table(result)
     print(text)
     if args.out:
-        out = Path(args.out)
-        stem = out.with_suffix("") if out.suffix == ".json" else out
-        payload = {"result": result, "provenance": provenance(_command())}
-        print(f"wrote {write_json(stem.with_suffix('.json'), payload)}")
-        print(f"wrote {atomic_write_text(stem.with_suffix('.md'), text)}")
+        _write_result_and_table(args.out, result, text)
     return 0
 
 

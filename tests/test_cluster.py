@@ -42,6 +42,7 @@ def _hold(run_dir: Path, seconds: float, heartbeat: float = 5.0) -> subprocess.P
         "print('held', flush=True)\n"
         f"time.sleep({seconds})\n"
         "c.release()\n"
+        "print('released', time.time(), flush=True)\n"
     )
     proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, env=_env())
     assert proc.stdout.readline().strip() == "held"
@@ -75,8 +76,10 @@ def test_a_live_holder_makes_the_next_worker_wait(tmp_path):
 
     start = time.monotonic()
     with Claim(run, poll_s=0.1, stream=Stream()):
-        waited = time.monotonic() - start
-        assert proc.poll() is not None, "took the claim while its holder was alive"
+        waited, taken_at = time.monotonic() - start, time.time()
+    word, released_at = proc.stdout.readline().split()
+    # the holder's own clock says it had let go (its exit may come later on a loaded machine)
+    assert word == "released" and taken_at >= float(released_at), "took the claim while its holder held it"
     assert waited > 1.0
     assert "waiting for it to finish or die" in "".join(log)
     proc.wait(timeout=10)

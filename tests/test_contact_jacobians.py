@@ -15,7 +15,10 @@ from harness.contact_jacobians import compare, contact_jacobians  # noqa: E402
 
 @pytest.mark.parametrize("backend", ["mujoco_warp", "newton"])
 def test_the_lifted_control_agrees_and_every_sampled_state_is_in_contact(backend):
-    result = contact_jacobians("ant", backend, states=2, num_envs=2, settle=10, progress=lambda line: None)
+    # two step sizes of Newton's sweep are enough to find a plateau off the ground
+    result = contact_jacobians(
+        "ant", backend, states=2, num_envs=2, settle=10, eps_sweep=(1e-2, 3e-3), progress=lambda line: None
+    )
     assert result["all"]["states"] == 2 and all(row["contacts"] > 0 for row in result["rows"])
     assert result["control_in_contact"] == 0
     assert result["control_lifted"]["median_rel_error"] < 1e-2  # smooth off the ground: the comparison is exact

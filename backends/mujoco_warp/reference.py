@@ -24,20 +24,26 @@ def c_control_step(sim, qpos: np.ndarray, qvel: np.ndarray, control: torch.Tenso
     model or on ``model`` (the same model with other solver settings)."""
     model = model if model is not None else sim.mjm
     data = data if data is not None else mujoco.MjData(model)
-    layout, phys = sim.layout, sim.task.physics
-    root_q, root_v = layout.nq - layout.num_dofs, layout.nv - layout.num_dofs
     mujoco.mj_resetData(model, data)
     data.qpos[:], data.qvel[:] = qpos, qvel
     control = control.to(torch.float64)
-    for _ in range(phys.substeps):
-        if sim.position_control:
-            hinge_q = torch.from_numpy(data.qpos[root_q:].copy())
-            hinge_qd = torch.from_numpy(data.qvel[root_v:].copy())
-            data.qfrc_applied[root_v:] = phys.pd_torque(control, hinge_q, hinge_qd).numpy()
-        else:
-            data.qfrc_applied[root_v:] = control.numpy()
+    for _ in range(sim.task.physics.substeps):
+        _apply_control(sim, data, control)
         mujoco.mj_step(model, data)
     return np.concatenate((data.qpos, data.qvel))
+
+
+def _apply_control(sim, data, control: torch.Tensor) -> None:
+    """The joint forces of one substep, as the adapter applies them: the torques, or the task's PD law
+    on the current hinge state."""
+    layout, phys = sim.layout, sim.task.physics
+    root_q, root_v = layout.nq - layout.num_dofs, layout.nv - layout.num_dofs
+    if sim.position_control:
+        hinge_q = torch.from_numpy(data.qpos[root_q:].copy())
+        hinge_qd = torch.from_numpy(data.qvel[root_v:].copy())
+        data.qfrc_applied[root_v:] = phys.pd_torque(control, hinge_q, hinge_qd).numpy()
+    else:
+        data.qfrc_applied[root_v:] = control.numpy()
 
 
 def float64_step_jacobians(sim, engine: torch.Tensor, control: torch.Tensor, eps: float = 1e-6, model=None):
@@ -80,20 +86,13 @@ def classify_step(sim, model, engine: torch.Tensor, control: torch.Tensor) -> di
     """What MuJoCo C sees during one control step of one env from ``engine`` on ``model``: the
     contacts at the start, whether a contact is made or broken during the step (onset), and whether
     a joint limit is active."""
-    layout, phys = sim.layout, sim.task.physics
-    root_q, root_v = layout.nq - layout.num_dofs, layout.nv - layout.num_dofs
     qpos, qvel = (x.double().numpy() for x in sim._split(engine.reshape(1, -1).double()))
     data = mujoco.MjData(model)
     data.qpos[:], data.qvel[:] = qpos[0], qvel[0]
     control = control.double()
     counts, limits = [], False
-    for _ in range(phys.substeps):
-        if sim.position_control:
-            hinge_q = torch.from_numpy(data.qpos[root_q:].copy())
-            hinge_qd = torch.from_numpy(data.qvel[root_v:].copy())
-            data.qfrc_applied[root_v:] = phys.pd_torque(control, hinge_q, hinge_qd).numpy()
-        else:
-            data.qfrc_applied[root_v:] = control.numpy()
+    for _ in range(sim.task.physics.substeps):
+        _apply_control(sim, data, control)
         mujoco.mj_step(model, data)
         counts.append(int(data.ncon))
         limits |= bool(np.any(data.efc_type[: data.nefc] == mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT))
