@@ -28,6 +28,11 @@ How gradients stay exact:
   by default (``mass_matrix_every``).
 * ``JOINT_POSITION_TARGET``: the PD law runs as a kernel on the tape before every substep, reading
   that substep's joint coordinates and writing that substep's own ``joint_f``.
+* A tape's backward pass is not read-only: replaying Featherstone's kernels rewrites some of their
+  forward outputs in place (the joint forces and accelerations, the external wrenches), so a second
+  backward through the same frame would replay from changed values and return a different, wrong
+  gradient. Before every backward after a frame's first, the frame's forward runs again from its
+  own (unchanged) inputs, so ``retain_graph`` backward passes all return the first one's gradient.
 * Without grad (``torch.no_grad()`` or inputs that need none) the step runs without a tape on
   two ping-pong buffers.
 * Graph capture (option ``graph_capture``, on by default on CPU): a frame's Warp work (collision,
@@ -86,6 +91,8 @@ class _Frame:
         # every step overwrites; a frame owns one set per mass-matrix update so its tape replays them
         self.matrices = [sim.new_matrix_buffers() for _ in range(sim.matrix_updates)] if sim.featherstone else []
         self.tape: wp.Tape | None = None
+        self.forward_work = None  # the forward's Warp work, to run again before a repeated backward
+        self.backward_passes = 0  # backward passes since the last forward
         self.generation = 0
         # captured once per frame when the adapter captures (see the module docstring)
         self.forward_graph = None
@@ -538,6 +545,7 @@ class NewtonSim(BatchedSim):
                     newton.eval_ik(self.model, states[-1], frame.joint_q, frame.joint_qd)
             frame.tape = tape  # a captured frame keeps the tape its graphs were recorded from
 
+        frame.forward_work, frame.backward_passes = work, 0
         self._replay(frame, "forward_graph", work)
         return frame
 
@@ -547,6 +555,9 @@ class NewtonSim(BatchedSim):
                 f"backward reached a step more than max_graph_steps={self.max_graph_steps} steps old whose "
                 "buffers were reused; call cut_graph() at window boundaries or raise max_graph_steps"
             )
+        if frame.backward_passes:  # the last backward rewrote forward values: restore them (module docstring)
+            self._replay(frame, "forward_graph", frame.forward_work)
+        frame.backward_passes += 1
         last = frame.states[-1]
         out_a, out_b = self._state_arrays(last)
         if self.featherstone:  # joint_q / joint_qd are views of the engine rows: one gradient
