@@ -322,6 +322,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--states", type=_positive_int, default=200, help="states in contact compared (default 200)")
     p.add_argument("--stride", type=_positive_int, default=5, help="steps between sampled states of an env")
+    p.add_argument(
+        "--policy-epochs",
+        type=_nonnegative_int,
+        default=30,
+        help="half the states come from a SHAC policy trained this many epochs on newton, half from random "
+        "actions (0: all random; default %(default)s)",
+    )
 
     p = sub.add_parser("throughput", help="env-steps/s forward-only and forward+backward, and the bare engine")
     _add(
@@ -919,6 +926,7 @@ def cmd_contact_jacobians(args) -> int:
             states=args.states,
             num_envs=args.num_envs,
             stride=args.stride,
+            policy_epochs=args.policy_epochs,
             seed=args.seed,
             preset=args.preset,
             progress=lambda line: print(line, flush=True),

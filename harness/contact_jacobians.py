@@ -2,8 +2,10 @@
 
 ``gradcheck`` differentiates a contact-free segment, where a step is smooth and a finite difference
 is an exact reference. Training runs on the ground. This check samples states from real rollouts
-(random actions after a settle, every ``stride`` steps, each env one trajectory, reset when it
-terminates as in training), keeps those MuJoCo C finds in contact, and compares, at each state, the
+(after a settle, every ``stride`` steps, each env one trajectory, reset when it terminates as in
+training) of two kinds: half under uniformly random actions, half under a policy, SHAC trained
+briefly on Newton for the purpose and acting stochastically as in training (the states early
+training visits). It keeps those MuJoCo C finds in contact and compares, at each state, the
 Jacobian of the next state with respect to the state and the actions with a reference:
 
 * **MuJoCo-Warp**: the adapter's own finite-difference Jacobians (:meth:`MujocoWarpSim.fd_jacobians`,
@@ -28,8 +30,14 @@ columns exclude the root quaternion (a perturbation would leave the unit sphere)
 relative Frobenius error ``||J - J_ref|| / ||J_ref||`` and the cosine of the flattened matrices.
 
 Each state is also classified by MuJoCo C on the task's model (stepped through the same control
-step): whether it is in contact, whether a contact is made or broken during the step (onset), and
-whether a joint limit is active. A state counts as agreeing at 5% (or 20%) relative error.
+step): whether it is in contact, whether a contact is made or broken during the step (onset),
+whether a joint limit is active, and whether friction sticks or slides
+(:func:`backends.mujoco_warp.reference.classify_step`). A state counts as agreeing at 5% (or 20%)
+relative error.
+
+A reference needs the tape to replay what its forward did: the tape's Jacobian takes one backward
+pass per output coordinate through the same step, which the contract requires to give the same
+gradient every time (``tests/test_contract.py``).
 """
 
 from __future__ import annotations
@@ -50,11 +58,31 @@ PLATEAU = 0.05
 THRESHOLDS = (0.05, 0.2)
 
 
-def sample_contact_states(sim, count: int, settle: int, stride: int, seed: int, action_scale: float, in_contact):
+def train_policy(task, epochs: int, seed: int, device: str = "cpu"):
+    """SHAC trained for ``epochs`` epochs on Newton (16 envs, h 16): the policy whose stochastic
+    actions drive the policy-driven samples (on either engine: both simulate the same task)."""
+    from algorithms.actor_critic import FirstOrderActorCritic
+    from algorithms.config import preset
+    from harness.envs import make_env
+
+    torch.manual_seed(seed)
+    cfg = preset("shac").replace(num_envs=16, horizon=16, max_epochs=epochs)
+    env = make_env(task, "newton", cfg.num_envs, device, seed, cfg.horizon)
+    algo = FirstOrderActorCritic(cfg, env.obs_dim, env.action_dim)
+    env.reset()
+    for _ in range(epochs):
+        algo.train_epoch(env)
+    return algo
+
+
+def sample_contact_states(
+    sim, count: int, settle: int, stride: int, seed: int, action_scale: float, in_contact, policy=None
+):
     """(q, qd, actions) of ``count`` states in contact from the env's own dynamics (an env that
-    terminates is reset, as in training): every env settles ``settle`` zero-action steps, then takes
-    random actions U(-s, s); every ``stride`` steps each env's state, and the action taken there, is
-    kept if ``in_contact(q, qd, action)`` says so."""
+    terminates is reset, as in training): every env settles ``settle`` zero-action steps, then acts,
+    with random actions U(-s, s), or with ``policy``'s stochastic actions when given; every
+    ``stride`` steps each env's state, and the action taken there, is kept if
+    ``in_contact(q, qd, action)`` says so."""
     from tasks.env import TaskEnv
 
     env = TaskEnv(sim.task, sim)
@@ -67,7 +95,10 @@ def sample_contact_states(sim, count: int, settle: int, stride: int, seed: int, 
             env.step(zeros)
         step = 0
         while len(qs) < count:
-            actions = action_scale * (2.0 * torch.rand(sim.num_envs, sim.task.action_dim, generator=gen) - 1.0)
+            if policy is None:
+                actions = action_scale * (2.0 * torch.rand(sim.num_envs, sim.task.action_dim, generator=gen) - 1.0)
+            else:
+                actions = policy.act(env.obs, deterministic=False)
             if step % stride == 0:
                 q, qd = sim.state.joint_q.detach().clone(), sim.state.joint_qd.detach().clone()
                 for i in range(sim.num_envs):
@@ -207,12 +238,14 @@ def contact_jacobians(
     stride: int = 5,
     seed: int = 0,
     action_scale: float = 0.5,
+    policy_epochs: int = 30,
     preset: str | None = None,
     device: str = "cpu",
     eps_sweep=NEWTON_EPS,
     progress=print,
 ) -> dict:
-    """The check (module docstring): a summary over all states, per class, and every state's row."""
+    """The check (module docstring): a summary over all states, per class and per source, and every
+    state's row. ``policy_epochs`` 0 samples every state under random actions."""
     from tasks import make_task
 
     if backend not in ("newton", "mujoco_warp"):
@@ -230,7 +263,17 @@ def contact_jacobians(
             classify_step(mjw_sim, model, engine.engine[0].detach(), task.actions_to_control(action)[0])["contacts"] > 0
         )
 
-    q, qd, actions = sample_contact_states(sim, states, settle, stride, seed, action_scale, in_contact)
+    sources = [("random actions", states - states // 2 if policy_epochs else states, None)]
+    if policy_epochs:
+        progress(f"training the sampling policy: SHAC, {policy_epochs} epochs on newton")
+        policy = train_policy(task, policy_epochs, seed)
+        sources.append((f"SHAC policy after {policy_epochs} epochs", states // 2, policy))
+    parts = [
+        sample_contact_states(sim, n, settle, stride, seed, action_scale, in_contact, policy) + (label,)
+        for label, n, policy in sources
+    ]
+    q, qd, actions = (torch.cat([p[k] for p in parts]) for k in range(3))
+    labels = [p[3] for p in parts for _ in range(p[0].shape[0])]
     lifted = q.clone()
     if task.layout.floating_base:
         lifted[:, 2] = task.airborne_height
@@ -248,11 +291,18 @@ def contact_jacobians(
             return _newton_rows(sim, mjw_sim, model, q_, qd, actions, eps_sweep, progress)
 
     rows = check(q, "states in contact:")
+    for row, label in zip(rows, labels, strict=True):
+        row["source"] = label
     control = check(lifted, f"the same states lifted to {task.airborne_height} m (control):")
     classes = {
         "contact made or broken in the step": [r for r in rows if r["onset"]],
         "joint limit active": [r for r in rows if r["limit"]],
+        "friction slides (some contact at the cone)": [r for r in rows if r["sliding"]],
+        "friction sticks (every contact inside the cone)": [r for r in rows if r["sticking"]],
         "contact, no onset, no limit": [r for r in rows if r["contacts"] > 0 and not r["onset"] and not r["limit"]],
+        "no onset, no limit, friction sticks": [
+            r for r in rows if r["contacts"] > 0 and not r["onset"] and not r["limit"] and r["sticking"]
+        ],
     }
     result = {
         "task": task_name,
@@ -264,9 +314,11 @@ def contact_jacobians(
             "settle": settle,
             "stride": stride,
             "action_scale": action_scale,
+            "policy_epochs": policy_epochs,
             "seed": seed,
         },
         "all": _summary(rows),
+        "by_source": {label: _summary([r for r in rows if r["source"] == label]) for label, _, _ in sources},
         "by_class": {name: _summary(members) for name, members in classes.items()},
         "control_lifted": _summary(control),
         "control_in_contact": sum(r["contacts"] > 0 for r in control),
@@ -295,6 +347,7 @@ def table(result: dict) -> str:
         )
 
     lines.append(row("all in contact", result["all"]))
+    lines += [row(f"from {name}", s) for name, s in result.get("by_source", {}).items()]
     lines += [row(name, s) for name, s in result["by_class"].items()]
     lines.append(row("control: the same states lifted clear of the ground", result["control_lifted"]))
     if "plateau_fraction" in result:

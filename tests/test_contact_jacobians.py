@@ -17,13 +17,35 @@ from harness.contact_jacobians import compare, contact_jacobians  # noqa: E402
 def test_the_lifted_control_agrees_and_every_sampled_state_is_in_contact(backend):
     # two step sizes of Newton's sweep are enough to find a plateau off the ground
     result = contact_jacobians(
-        "ant", backend, states=2, num_envs=2, settle=10, eps_sweep=(1e-2, 3e-3), progress=lambda line: None
+        "ant",
+        backend,
+        states=2,
+        num_envs=2,
+        settle=10,
+        policy_epochs=1,
+        eps_sweep=(1e-2, 3e-3),
+        progress=lambda line: None,
     )
     assert result["all"]["states"] == 2 and all(row["contacts"] > 0 for row in result["rows"])
+    # one state from random actions, one from the briefly trained policy, each row says which
+    assert [row["source"] for row in result["rows"]] == ["random actions", "SHAC policy after 1 epochs"]
+    assert all(s["states"] == 1 for s in result["by_source"].values())
     assert result["control_in_contact"] == 0
     assert result["control_lifted"]["median_rel_error"] < 1e-2  # smooth off the ground: the comparison is exact
     for row in result["rows"]:
         assert -1.0 - 1e-9 <= row["cosine"] <= 1.0 + 1e-9 and row["rel_error"] >= 0.0
+
+
+def test_newton_agrees_with_its_own_differences_in_contact_wherever_they_converge():
+    """The tape's Jacobian takes one backward pass per output coordinate through the same step; were a
+    repeated pass to differ from the first (Newton's kernels rewrite forward values while their tape
+    replays), the tape would disagree with converged differences by O(1) at most states in contact."""
+    result = contact_jacobians(
+        "ant", "newton", states=6, num_envs=3, policy_epochs=0, eps_sweep=(1e-3, 3e-4, 1e-4), progress=lambda line: None
+    )
+    converged = [row for row in result["rows"] if row["plateau_eps"] is not None]
+    assert len(converged) >= 3, result["rows"]
+    assert max(row["rel_error"] for row in converged) < 5e-2, [row["rel_error"] for row in converged]
 
 
 def test_compare_is_relative_and_scale_free():

@@ -82,21 +82,40 @@ def accurate_model(mjm):
     return model
 
 
+#: a contact sticks when its friction force stays inside the cone by this margin (else it slides)
+STICK_MARGIN = 0.98
+
+
 def classify_step(sim, model, engine: torch.Tensor, control: torch.Tensor) -> dict:
     """What MuJoCo C sees during one control step of one env from ``engine`` on ``model``: the
-    contacts at the start, whether a contact is made or broken during the step (onset), and whether
-    a joint limit is active."""
+    contacts at the start, whether a contact is made or broken during the step (onset), whether a
+    joint limit is active, and whether friction slides: ``sliding`` when some pushing contact's
+    friction force reaches the Coulomb cone (|f_t| >= STICK_MARGIN mu f_n) in some substep, the
+    regime switch where the penalty friction law turns from viscous to capped; ``sticking`` when
+    every pushing contact stays inside the cone throughout."""
     qpos, qvel = (x.double().numpy() for x in sim._split(engine.reshape(1, -1).double()))
     data = mujoco.MjData(model)
     data.qpos[:], data.qvel[:] = qpos[0], qvel[0]
     control = control.double()
-    counts, limits = [], False
+    counts, limits, pushing, sliding = [], False, 0, False
+    force = np.zeros(6)
     for _ in range(sim.task.physics.substeps):
         _apply_control(sim, data, control)
         mujoco.mj_step(model, data)
         counts.append(int(data.ncon))
         limits |= bool(np.any(data.efc_type[: data.nefc] == mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT))
-    return {"contacts": counts[0], "onset": len(set(counts)) > 1, "limit": limits}
+        for i in range(data.ncon):  # the constraint forces of this substep's solve, in the contact frame
+            mujoco.mj_contactForce(model, data, i, force)
+            if force[0] > 0.0:
+                pushing += 1
+                sliding |= bool(np.hypot(force[1], force[2]) >= STICK_MARGIN * data.contact[i].friction[0] * force[0])
+    return {
+        "contacts": counts[0],
+        "onset": len(set(counts)) > 1,
+        "limit": limits,
+        "sliding": sliding,
+        "sticking": pushing > 0 and not sliding,
+    }
 
 
 __all__ = ["accurate_model", "c_control_step", "classify_step", "float64_step_jacobians"]
