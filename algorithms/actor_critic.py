@@ -143,7 +143,11 @@ class FirstOrderActorCritic(nn.Module):
                 group["lr"] = lr0 + (cfg.min_lr - lr0) * frac
 
     # -- 1. rollout ------------------------------------------------------------------------
-    def rollout(self, env, track_heads: bool = True) -> Window:
+    def rollout(self, env, track_heads: bool = True, feedback: bool = True, bootstrap: bool = True) -> Window:
+        """``feedback=False`` detaches the observations the policy reads (its actions still drive the
+        simulator: the gradient keeps the open-loop path action -> later states -> rewards but loses
+        state -> policy -> action); ``bootstrap=False`` detaches the states the critic reads for the
+        actor's bootstrap values. Both on in training; ``harness grad-paths`` switches them."""
         cfg = self.cfg
         env.cut_graph()  # window boundary: nothing below reaches earlier windows
         obs = env.obs
@@ -158,7 +162,7 @@ class FirstOrderActorCritic(nn.Module):
             nobs = frozen_rms.normalize(obs) if cfg.obs_norm else obs
             if cfg.obs_norm:
                 self.obs_rms.update(obs.detach())
-            head = self.actor.head(nobs)
+            head = self.actor.head(nobs if feedback else nobs.detach())
             if track_heads and head.requires_grad:
                 head.retain_grad()
             action, log_prob = self.actor.act(head, torch.randn_like(head[:, : self.act_dim]))
@@ -170,7 +174,7 @@ class FirstOrderActorCritic(nn.Module):
                 entropy = -self.actor.act(head, torch.randn_like(head[:, : self.act_dim]))[1]
                 reward = reward + alpha * self.scaled_entropy(entropy)
             final_nobs = frozen_rms.normalize(step.final_obs) if cfg.obs_norm else step.final_obs
-            values = self.values(final_nobs, target=True)
+            values = self.values(final_nobs if bootstrap else final_nobs.detach(), target=True)
             for key, value in (
                 ("rewards", reward),
                 ("env_rewards", step.reward.detach()),

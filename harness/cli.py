@@ -1,8 +1,8 @@
 """``python -m harness VERB ...``: the benchmark's command line.
 
 Verbs: ``list``, ``gradcheck``, ``throughput``, ``train`` (and ``train --resume DIR``), ``eval``,
-``report``, ``sweep``, ``grad-growth``, ``crosscheck``, ``parity``, ``contact-jacobians``, ``solver-probe``,
-``fd-schemes``, ``scaling``, ``scaling-plot``, ``bench`` (the suite), ``bench-run`` (one of its runs),
+``report``, ``sweep``, ``grad-growth``, ``grad-paths``, ``crosscheck``, ``parity``, ``contact-jacobians``,
+``solver-probe``, ``fd-schemes``, ``scaling``, ``scaling-plot``, ``bench`` (the suite), ``bench-run`` (one of its runs),
 ``landscape``. Every flag is declared once in :data:`FLAGS` (type, default, help) and every
 hyperparameter flag is generated from :class:`algorithms.config.AlgoConfig`, whose field docs are
 the ``--help`` text. Bad input (an
@@ -166,6 +166,7 @@ VERB_DEFAULTS: dict[str, dict] = {
     "throughput": {"num_envs": 64, "horizon": 32, "windows": 5},
     "sweep": {"num_envs": 64, "horizon": 32},
     "grad-growth": {"windows": 3},
+    "grad-paths": {"algo": "shac", "num_envs": 16, "horizon": 16, "epochs": 10},
     "solver-probe": {"num_envs": 64, "task": "ant", "max_steps": 1000, "backend": "newton"},
     "fd-schemes": {"num_envs": 8, "windows": 3},
     "scaling": {"horizon": 8, "windows": 3},
@@ -282,6 +283,18 @@ def build_parser() -> argparse.ArgumentParser:
     _add(p, "grad-growth", "run", required=("run",))
     p.add_argument("--variant", action="append", default=None, help="physics changes, e.g. contact_kf=300")
     _add(p, "grad-growth", "windows", "out")
+
+    p = sub.add_parser(
+        "grad-paths",
+        help="actor-gradient norms on training's own windows with the policy's feedback path and the critic's "
+        "bootstrap path each switched off",
+    )
+    _add(
+        p,
+        "grad-paths",
+        *("backend", "task", "preset", "algo", "num_envs", "horizon", "epochs", "seed", "device", "out"),
+        required=("backend", "task"),
+    )
 
     p = sub.add_parser(
         "crosscheck",
@@ -857,6 +870,37 @@ def cmd_grad_growth(args) -> int:
     return 0
 
 
+def cmd_grad_paths(args) -> int:
+    from algorithms.config import PRESETS
+    from harness.grad_paths import grad_paths, table
+
+    _validate_names(args.backend, args.task)
+    _check_device(args.device)
+    _check_preset(args.task, args.preset)
+    if args.algo not in PRESETS:
+        raise BadInput(f"unknown algorithm {args.algo!r}; choose from: {', '.join(PRESETS)}")
+    if args.out:
+        _check_output_file(args.out)
+    print(f"grad-paths {args.algo} on {args.backend}/{args.task}: {args.epochs} epochs, four rollouts of each window")
+    result = grad_paths(
+        args.task,
+        args.backend,
+        algo_name=args.algo,
+        epochs=args.epochs,
+        num_envs=args.num_envs,
+        horizon=args.horizon,
+        seed=args.seed,
+        preset=args.preset,
+        device=args.device,
+        progress=lambda line: print(line, flush=True),
+    )
+    text = table(result)
+    print(text)
+    if args.out:
+        _write_result_and_table(args.out, result, text)
+    return 0
+
+
 def sim_physics(sim) -> dict:
     """What a check's result file says about the physics it ran: preset, constants, integrator, mapping."""
     return {**sim.task.physics_record(), "integrator": sim.integrator, "physics_mapping": sim.physics_mapping()}
@@ -1069,6 +1113,7 @@ VERBS = {
     "report": cmd_report,
     "sweep": cmd_sweep,
     "grad-growth": cmd_grad_growth,
+    "grad-paths": cmd_grad_paths,
     "crosscheck": cmd_crosscheck,
     "parity": cmd_parity,
     "contact-jacobians": cmd_contact_jacobians,
