@@ -12,7 +12,7 @@
   AlgoConfig field under ``[train.hyperparameters]``; ``[train.per_task.TASK]`` overrides
   ``epochs``, ``num_envs``, ``horizons``, ``seeds``, ``preset`` or hyperparameters for one task, and
   ``[train.eval]`` the evaluation protocol for the block (``seeds = 0``: no evaluation);
-* ``[[check]]``: ``kind`` (gradcheck, throughput, crosscheck, parity, contact-jacobians), ``backends``,
+* ``[[check]]``: ``kind`` (gradcheck, throughput, crosscheck, parity, contact-jacobians, grad-paths), ``backends``,
   ``tasks`` and the verb's extra ``args`` (a list of command-line words), optionally
   ``[check.per_task.TASK]`` with ``args``;
 * ``[[sim_to_sim]]``: runs of the train grid (``task``, ``train_backend``, ``algos``, ``seeds``,
@@ -57,7 +57,7 @@ from harness.claims import Claim
 from harness.results import RunError, RunStopped
 
 PROFILES_DIR = Path(__file__).resolve().parent / "profiles"
-CHECK_KINDS = ("gradcheck", "throughput", "crosscheck", "parity", "contact-jacobians")
+CHECK_KINDS = ("gradcheck", "throughput", "crosscheck", "parity", "contact-jacobians", "grad-paths")
 MULTI_BACKEND_KINDS = ("crosscheck", "parity")  # one job over all of a block's backends
 
 # Seconds per env step of a training epoch (simulation with gradients and the updates) on this 2-core
@@ -84,6 +84,7 @@ _CHECK_SECONDS = {
     "crosscheck": 60.0,
     "parity": 120.0,
     "contact-jacobians": 300.0,
+    "grad-paths": 120.0,
 }
 _STARTUP_S = 12.0  # a job's process start, imports and model build (Warp kernels cached)
 

@@ -274,6 +274,8 @@ def _check_kind(name: str, result: dict) -> str:
         return "parity"
     if "control_lifted" in result:
         return "contact-jacobians"
+    if "skip_threshold" in result and "summary" in result:
+        return "grad-paths"
     if "com" in result and "pairs" in result:
         return "forward-crosscheck"
     return name.split("_", 1)[0] if "_" in name else "unknown"
@@ -938,6 +940,12 @@ def check_summary(check: CheckRecord) -> str:
             f"Jacobians at {a.get('states')} states in contact: median rel. error {_fmt(a.get('median_rel_error'))}, "
             f"{_pct(a.get('within_20pct'))} within 20%; lifted control {_fmt(c.get('median_rel_error'))}"
         )
+    if check.kind == "grad-paths":
+        s = r.get("summary", {})
+        parts = [
+            f"{label} {_fmt(v.get('median_norm'))} ({v.get('above_skip_threshold')} skipped)" for label, v in s.items()
+        ]
+        return f"{r.get('algo')} actor-gradient norms, median over {r.get('epochs')} epochs: " + ", ".join(parts)
     if check.kind == "forward-crosscheck":
         _, gap = _pairs_summary(r.get("pairs", {}), ("", "com_distance_max"))
         return f"forward rollouts across backends: max centre-of-mass distance {_fmt(gap)} m, {r.get('steps')} steps"
