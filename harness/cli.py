@@ -330,7 +330,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add(
         p,
         "contact-jacobians",
-        *("backend", "task", "preset", "num_envs", "device", "seed", "out"),
+        *("backend", "task", "preset", "num_envs", "device", "seed", "out", "backend_option"),
         required=("backend", "task"),
     )
     p.add_argument("--states", type=_positive_int, default=200, help="states in contact compared (default 200)")
@@ -973,6 +973,7 @@ def cmd_contact_jacobians(args) -> int:
             policy_epochs=args.policy_epochs,
             seed=args.seed,
             preset=args.preset,
+            options=dict(args.backend_option or []),
             progress=lambda line: print(line, flush=True),
         )
     except ValueError as exc:

@@ -242,10 +242,12 @@ def contact_jacobians(
     preset: str | None = None,
     device: str = "cpu",
     eps_sweep=NEWTON_EPS,
+    options: dict | None = None,
     progress=print,
 ) -> dict:
     """The check (module docstring): a summary over all states, per class and per source, and every
-    state's row. ``policy_epochs`` 0 samples every state under random actions."""
+    state's row. ``policy_epochs`` 0 samples every state under random actions; ``options`` are the
+    checked adapter's (for MuJoCo-Warp, its finite-difference settings)."""
     from tasks import make_task
 
     if backend not in ("newton", "mujoco_warp"):
@@ -253,7 +255,7 @@ def contact_jacobians(
     task = make_task(task_name, preset=preset)
     if task.layout.num_particles:
         raise ValueError(f"{task_name}: soft bodies have no MuJoCo C reference; use crosscheck")
-    sim = make_sim(backend, task, num_envs, device=device, seed=seed, horizon=4)
+    sim = make_sim(backend, task, num_envs, device=device, seed=seed, horizon=4, **(options or {}))
     mjw_sim = sim if backend == "mujoco_warp" else make_sim("mujoco_warp", task, num_envs, seed=seed, horizon=4)
     model = accurate_model(mjw_sim.mjm)
 
@@ -317,6 +319,7 @@ def contact_jacobians(
             "policy_epochs": policy_epochs,
             "seed": seed,
         },
+        "options": dict(options or {}),
         "all": _summary(rows),
         "by_source": {label: _summary([r for r in rows if r["source"] == label]) for label, _, _ in sources},
         "by_class": {name: _summary(members) for name, members in classes.items()},

@@ -159,6 +159,28 @@ def test_forward_with_grad_equals_forward_without_and_chunking_changes_nothing(s
     assert sim.worlds_per_env_with_grad == 1 + 2 * (2 * 14 + 8)
 
 
+def test_perturbed_solver_settings_leave_the_nominal_world_and_smooth_jacobians_alone(sim, ant):
+    """fd_warmstart=nominal and fd_tolerance=0 change only the perturbed worlds' solves: the forward
+    result stays bit-identical to a step without gradients, and where the step is smooth (in the air)
+    the Jacobians agree with the default settings' to float32 round-off."""
+    gen = torch.Generator().manual_seed(3)
+    q, qd = ant.sample_initial_state(2, gen)
+    q[:, 2] = 2.0
+    engine = sim.state_from_generalized(q, qd).engine.detach()
+    control = ant.actions_to_control(_actions(2, gen))
+    with torch.no_grad():
+        plain = sim.simulate(sim._state_from_engine(engine), control).engine
+    _, jac_state, jac_control = sim.fd_jacobians(engine, control)
+    tuned = make("mujoco_warp", ant, num_envs=2, seed=1, fd_warmstart="nominal", fd_tolerance=0.0)
+    nominal, jac_state_t, jac_control_t = tuned.fd_jacobians(engine, control)
+    assert torch.equal(plain, nominal)
+    assert (jac_state_t - jac_state).norm() / jac_state.norm() < 1e-3
+    assert (jac_control_t - jac_control).norm() / jac_control.norm() < 1e-3
+    for bad in ({"fd_warmstart": "previous"}, {"fd_tolerance": -1.0}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            make("mujoco_warp", ant, num_envs=2, seed=1, **bad)
+
+
 # -- (c) per-step Jacobians against MuJoCo's float64 C finite differences ---------------------------
 def _transition_fd_reference(ant, engine: np.ndarray, torque: np.ndarray):
     """Tangent Jacobians (A: 2nv x 2nv, B: 2nv x nu) of one control step from ``mjd_transitionFD``.

@@ -223,6 +223,8 @@ class MujocoWarpSim(BatchedSim):
         "fd_scheme",
         "fd_eps_state",
         "fd_eps_control",
+        "fd_warmstart",
+        "fd_tolerance",
         "fd_chunk_envs",
         "fd_chunk_worlds",
         "nconmax",
@@ -255,6 +257,14 @@ class MujocoWarpSim(BatchedSim):
             raise ValueError("fd_eps_state and fd_eps_control must be positive")
         if self.fd_chunk_envs < 1 or self.nconmax < 1 or self.njmax < 1:
             raise ValueError("fd_chunk_envs, nconmax and njmax must be >= 1")
+        # the perturbed worlds' constraint solves (module docstring, "Solver settings of the perturbed worlds")
+        self.fd_warmstart = str(self.options.get("fd_warmstart", "zero"))
+        if self.fd_warmstart not in ("zero", "nominal"):
+            raise ValueError(f"fd_warmstart must be zero or nominal, got {self.fd_warmstart!r}")
+        tolerance = self.options.get("fd_tolerance")
+        self.fd_tolerance = None if tolerance is None else float(tolerance)
+        if self.fd_tolerance is not None and not self.fd_tolerance >= 0:
+            raise ValueError(f"fd_tolerance must be >= 0, got {tolerance!r}")
 
         self.mjm = build_spec(task).compile()
         layout = task.layout
@@ -273,6 +283,7 @@ class MujocoWarpSim(BatchedSim):
         with wp.ScopedDevice(self.wp_device):
             self.model = mjw.put_model(self.mjm)
         self._data: dict[int, tuple[mjw.Data, dict[str, torch.Tensor]]] = {}
+        self._fd_models: dict[int, mjw.Model] = {}
 
         # central-difference step of every tangent coordinate: 2 nv state coordinates, then the torques
         eps = [self.fd_eps_state] * (2 * layout.nv) + [self.fd_eps_control] * layout.num_dofs
@@ -384,12 +395,38 @@ class MujocoWarpSim(BatchedSim):
         return self._data[nworld]
 
     # -- simulation -----------------------------------------------------------------------
-    def _run_worlds(self, qpos: torch.Tensor, qvel: torch.Tensor, torque: torch.Tensor) -> torch.Tensor:
+    def _fd_model(self, blocks: int, envs: int) -> mjw.Model:
+        """The model of a finite-difference batch of ``blocks`` x ``envs`` worlds (perturbation-major):
+        the adapter's own, or with ``fd_tolerance`` a shallow copy whose per-world solver tolerance is
+        ``fd_tolerance`` in the perturbed worlds and the model's own in the nominal block (whose
+        output is the forward result, bit-identical to a step without gradients)."""
+        if self.fd_tolerance is None:
+            return self.model
+        worlds = blocks * envs
+        if worlds not in self._fd_models:
+            import copy
+
+            model = copy.copy(self.model)
+            model.opt = copy.copy(self.model.opt)
+            own = float(self.mjm.opt.tolerance)
+            values = torch.full((worlds,), self.fd_tolerance, dtype=torch.float32)
+            values[:envs] = own
+            with wp.ScopedDevice(self.wp_device):
+                model.opt.tolerance = wp.array(values.numpy(), dtype=float)
+            self._fd_models[worlds] = model
+        return self._fd_models[worlds]
+
+    def _run_worlds(
+        self, qpos: torch.Tensor, qvel: torch.Tensor, torque: torch.Tensor, blocks: int = 1
+    ) -> torch.Tensor:
         """One control step of ``W`` independent worlds: (W, nq), (W, nv), (W, J) -> next engine (W, D).
 
         ``torque`` is the joint torque, or for position control the PD target the torque is computed
-        from at every substep (``PhysicsSpec.pd_torque``, applied as ``qfrc_applied``)."""
-        data, view = self._data_for(qpos.shape[0])
+        from at every substep (``PhysicsSpec.pd_torque``, applied as ``qfrc_applied``). ``blocks`` > 1:
+        a finite-difference batch, ``blocks`` perturbations of W / blocks envs, the nominal first,
+        solved with the options ``fd_warmstart`` and ``fd_tolerance``."""
+        worlds = qpos.shape[0]
+        data, view = self._data_for(worlds)
         root = self.layout.nv - self.layout.num_dofs
         view["qpos"].copy_(qpos)
         view["qvel"].copy_(qvel)
@@ -399,13 +436,22 @@ class MujocoWarpSim(BatchedSim):
         view["time"].zero_()
         view["overflow"].zero_()
         phys = self.task.physics
+        envs = worlds // blocks
+        carry = blocks > 1 and self.fd_warmstart == "nominal"
+        warm = view["qacc_warmstart"].view(blocks, envs, -1)
+        substep = [0]
 
-        def pd_law() -> None:  # on this substep's state, as Newton's adapter does
-            hinges = view["qpos"][:, self.layout.nq - self.layout.num_dofs :]
-            view["qfrc_applied"][:, root:] = phys.pd_torque(torque, hinges, view["qvel"][:, root:])
+        def before_substep() -> None:
+            if carry and substep[0] > 0:  # every perturbed world starts its solve where the nominal's did
+                warm[1:] = warm[:1]
+            substep[0] += 1
+            if self.position_control:  # on this substep's state, as Newton's adapter does
+                hinges = view["qpos"][:, self.layout.nq - self.layout.num_dofs :]
+                view["qfrc_applied"][:, root:] = phys.pd_torque(torque, hinges, view["qvel"][:, root:])
 
-        hook = pd_law if self.position_control else None
-        return run_substeps(self.model, data, view, phys.substeps, self.stepper, hook, (self.nconmax, self.njmax))
+        hook = before_substep if (self.position_control or carry) else None
+        model = self._fd_model(blocks, envs) if blocks > 1 else self.model
+        return run_substeps(model, data, view, phys.substeps, self.stepper, hook, (self.nconmax, self.njmax))
 
     def _split(self, engine: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return engine[:, : self.layout.nq], engine[:, self.layout.nq :]
@@ -577,7 +623,7 @@ class MujocoWarpSim(BatchedSim):
             e = engine[start : start + self.fd_chunk_envs]
             u = control[start : start + self.fd_chunk_envs]
             qpos, qvel, torque = self._retract(e, u, deltas)  # (K * n, .) worlds, perturbation-major
-            y = self._run_worlds(qpos.float(), qvel.float(), torque.float()).double()
+            y = self._run_worlds(qpos.float(), qvel.float(), torque.float(), blocks=deltas.shape[0]).double()
             y = y.reshape(deltas.shape[0], e.shape[0], -1)
             outputs.append(y[0].float())
             jac.append(self._fd_quotients(y).permute(1, 2, 0))  # (n, D, P)
