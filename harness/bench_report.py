@@ -742,7 +742,23 @@ def throughput_table(checks: list[CheckRecord]) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=columns)
 
 
-BACKEND_MEASURES = ("seeds", "epochs", "env_steps", "iqm_final", "wall_min_mean", "s_per_epoch_mean")
+BACKEND_MEASURES = (
+    "seeds",
+    "epochs",
+    "env_steps",
+    "iqm_final",
+    "gain_mean",
+    "skipped_pct",
+    "grad_norm_median",
+    "wall_min_mean",
+    "s_per_epoch_mean",
+)
+
+
+def _skipped_fraction(run: RunRecord) -> float:
+    """The fraction of a run's actor updates skipped as exploding or non-finite."""
+    column = _column(run.metrics, "actor_update_skipped")
+    return float(column.astype(float).mean()) if len(column) and column.notna().all() else math.nan
 
 
 def backends_table(runs: list[RunRecord]) -> pd.DataFrame:
@@ -757,6 +773,8 @@ def backends_table(runs: list[RunRecord]) -> pd.DataFrame:
         (r for r in runs if r.epochs), lambda r: (r.task, r.num_envs, r.planned_epochs, r.horizon, r.algo, r.backend)
     ).items():
         evaluated = [r.final_return for r in members if r.evaluation is not None]
+        gains = [r.final_return - r.initial_return for r in members if r.evaluation is not None]
+        norms = _seed_medians(members, "actor_grad_norm")
         long_rows.append(
             {
                 "task": task,
@@ -769,6 +787,9 @@ def backends_table(runs: list[RunRecord]) -> pd.DataFrame:
                 "epochs": _value_or_range(r.epochs for r in members),
                 "env_steps": _value_or_range(r.env_steps for r in members),
                 "iqm_final": iqm(evaluated),
+                "gain_mean": float(np.mean(gains)) if gains else math.nan,
+                "skipped_pct": 100.0 * float(np.nanmean([_skipped_fraction(r) for r in members])),
+                "grad_norm_median": float(np.median(norms)) if norms.size else math.nan,
                 "wall_min_mean": float(np.mean([r.wall_s for r in members])) / 60.0,
                 "s_per_epoch_mean": float(np.mean([r.wall_s / r.epochs for r in members])),
             }
@@ -1387,6 +1408,9 @@ def backends_document(runs: list[RunRecord]) -> Table:
             (f"{b} epochs", f"{b}_epochs"),
             (f"{b} env steps", f"{b}_env_steps"),
             (f"{b} IQM final", f"{b}_iqm_final"),
+            (f"{b} gain over untrained", f"{b}_gain_mean"),
+            (f"{b} updates skipped %", f"{b}_skipped_pct"),
+            (f"{b} median grad norm", f"{b}_grad_norm_median"),
             (f"{b} wall min", f"{b}_wall_min_mean"),
             (f"{b} s / epoch", f"{b}_s_per_epoch_mean"),
         ]
@@ -1403,7 +1427,10 @@ def backends_document(runs: list[RunRecord]) -> Table:
         ],
         [
             "Per backend: training seeds (runs), epochs and env steps per run, IQM of the final eval return "
-            "over the evaluated seeds, mean wall minutes per run and mean seconds per epoch."
+            "over the evaluated seeds, the mean gain of the final policy's eval return over the untrained "
+            "policy's (same protocol), the share of actor updates skipped as exploding or non-finite (all seeds' "
+            "epochs), the median over seeds of each run's median actor-gradient norm (before clipping), mean "
+            "wall minutes per run and mean seconds per epoch."
         ],
         _run_commits(trained),
     )
