@@ -122,17 +122,28 @@ def compare(jac: np.ndarray, ref: np.ndarray) -> tuple[float, float]:
     return rel, float(a @ b / denom) if denom > 0 else math.nan
 
 
+def _batches(n: int, *tensors: torch.Tensor):
+    """(count, batch) pairs of ``n`` rows of every tensor, the last batch padded with copies of its
+    first row so that every batch fills the sim's ``n`` envs; ``count`` rows of it are real."""
+    total = tensors[0].shape[0]
+    for start in range(0, total, n):
+        count = min(n, total - start)
+        pad = n - count
+        yield (
+            count,
+            [torch.cat((t[start : start + count], t[start : start + 1].expand(pad, *t.shape[1:]))) for t in tensors],
+        )
+
+
 def _mujoco_warp_rows(sim, model, q, qd, actions, progress) -> list[dict]:
     from backends.mujoco_warp.reference import float64_step_jacobians
 
     rows = []
-    n = sim.num_envs
-    for start in range(0, q.shape[0], n):
-        qb, qdb, ab = q[start : start + n], qd[start : start + n], actions[start : start + n]
+    for count, (qb, qdb, ab) in _batches(sim.num_envs, q, qd, actions):
         engine = sim.state_from_generalized(qb, qdb).engine.detach()
         control = sim.task.actions_to_control(ab)
         _, jac_state, jac_control = sim.fd_jacobians(engine, control)
-        for i in range(engine.shape[0]):
+        for i in range(count):
             _, ref_state, ref_control = float64_step_jacobians(sim, engine[i], control[i], model=model)
             jac = np.concatenate((jac_state[i].numpy(), jac_control[i].numpy()), axis=1)
             rel, cos = compare(jac, np.concatenate((ref_state, ref_control), axis=1))
@@ -161,9 +172,9 @@ def _newton_rows(sim, mjw_sim, model, q, qd, actions, eps_sweep, progress) -> li
         nxt = sim.advance(state, a)
         return torch.cat((nxt.joint_q, nxt.joint_qd), dim=1)
 
-    for start in range(0, q.shape[0], n):
-        x = torch.cat((q[start : start + n], qd[start : start + n]), dim=1).detach()
-        a = actions[start : start + n].detach()
+    for count, (qb, qdb, ab) in _batches(n, q, qd, actions):
+        x = torch.cat((qb, qdb), dim=1).detach()
+        a = ab.detach()
         # the tape: one backward pass per output coordinate, every env at once (envs are independent)
         xs, av = x.clone().requires_grad_(True), a.clone().requires_grad_(True)
         out = step(xs, av)
@@ -190,7 +201,7 @@ def _newton_rows(sim, mjw_sim, model, q, qd, actions, eps_sweep, progress) -> li
                 fds.append(fd)
         engine = mjw_sim.state_from_generalized(x[:, :nq], x[:, nq:]).engine.detach()
         control = mjw_sim.task.actions_to_control(a)
-        for i in range(n):
+        for i in range(count):
             per_eps = [compare(tape[i].numpy(), fd[i].numpy()) for fd in fds]
             # a plateau: two neighbouring step sizes whose differences agree; the tape against the
             # first such pair's smaller step
