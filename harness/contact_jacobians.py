@@ -42,6 +42,7 @@ gradient every time (``tests/test_contract.py``).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -299,14 +300,21 @@ def contact_jacobians(
     else:
         reference = f"central differences in float32 over steps {list(eps_sweep)}, at the first plateau"
 
-        def check(q_, label):
+        def check(q_, label, checked=sim):
             progress(label)
-            return _newton_rows(sim, mjw_sim, model, q_, qd, actions, eps_sweep, progress)
+            return _newton_rows(checked, mjw_sim, model, q_, qd, actions, eps_sweep, progress)
 
     rows = check(q, "states in contact:")
     for row, label in zip(rows, labels, strict=True):
         row["source"] = label
     control = check(lifted, f"the same states lifted to {task.airborne_height} m (control):")
+    undamped = None
+    if backend == "newton" and task.physics.contact_kd > 0:
+        # the penalty law damps only while a contact closes (min(v_n, 0) kd): a kink at v_n = 0 that a
+        # resting foot sits on; without it the step is smooth in contact and the tape must agree
+        smooth = make_task(task_name, dataclasses.replace(task.physics, contact_kd=0.0), preset=preset)
+        smooth_sim = make_sim(backend, smooth, num_envs, device=device, seed=seed, horizon=4, **(options or {}))
+        undamped = check(q, "the same states without contact damping (control):", smooth_sim)
     classes = {
         "contact made or broken in the step": [r for r in rows if r["onset"]],
         "joint limit active": [r for r in rows if r["limit"]],
@@ -335,6 +343,7 @@ def contact_jacobians(
         "by_source": {label: _summary([r for r in rows if r["source"] == label]) for label, _, _ in sources},
         "by_class": {name: _summary(members) for name, members in classes.items()},
         "control_lifted": _summary(control),
+        "control_no_contact_damping": _summary(undamped) if undamped is not None else None,
         "control_in_contact": sum(r["contacts"] > 0 for r in control),
         "rows": rows,
     }
@@ -364,6 +373,8 @@ def table(result: dict) -> str:
     lines += [row(f"from {name}", s) for name, s in result.get("by_source", {}).items()]
     lines += [row(name, s) for name, s in result["by_class"].items()]
     lines.append(row("control: the same states lifted clear of the ground", result["control_lifted"]))
+    if result.get("control_no_contact_damping"):
+        lines.append(row("control: the same states, contact damping off", result["control_no_contact_damping"]))
     if "plateau_fraction" in result:
         per_eps = ", ".join(f"{k}: {v:.3g}" for k, v in result["median_rel_error_per_eps"].items())
         lines += [

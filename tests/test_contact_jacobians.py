@@ -48,6 +48,16 @@ def test_newton_agrees_with_its_own_differences_in_contact_wherever_they_converg
     assert max(row["rel_error"] for row in converged) < 5e-2, [row["rel_error"] for row in converged]
 
 
+def test_without_contact_damping_newtons_go2_tape_agrees_in_contact():
+    """The Go2's feet rest on the ground, where the one-sided contact damping min(v_n, 0) kd switches
+    inside every stencil; with it off (the control the check runs beside) the step is smooth and the
+    tape must agree with the differences."""
+    result = contact_jacobians(
+        "go2", "newton", states=2, num_envs=2, policy_epochs=0, eps_sweep=(1e-3, 3e-4, 1e-4), progress=lambda line: None
+    )
+    assert result["control_no_contact_damping"]["median_rel_error"] < 2e-2, result["control_no_contact_damping"]
+
+
 def test_compare_is_relative_and_scale_free():
     import numpy as np
 
