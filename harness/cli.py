@@ -293,6 +293,7 @@ def build_parser() -> argparse.ArgumentParser:
         p,
         "grad-paths",
         *("backend", "task", "preset", "algo", "num_envs", "horizon", "epochs", "seed", "device", "out"),
+        "backend_option",
         required=("backend", "task"),
     )
 
@@ -892,6 +893,7 @@ def cmd_grad_paths(args) -> int:
         seed=args.seed,
         preset=args.preset,
         device=args.device,
+        options=dict(args.backend_option or []),
         progress=lambda line: print(line, flush=True),
     )
     text = table(result)

@@ -52,21 +52,24 @@ def grad_paths(
     seed: int = 0,
     preset: str | None = None,
     device: str = "cpu",
+    options: dict | None = None,
     progress=print,
 ) -> dict:
-    """The check (module docstring): per epoch the four norms, and per variant a summary."""
+    """The check (module docstring): per epoch the four norms, and per variant a summary; ``options``
+    are the adapter's (for MuJoCo-Warp, its finite-difference settings)."""
     import random
 
     from algorithms.actor_critic import FirstOrderActorCritic
     from algorithms.config import preset as algo_preset
-    from harness.envs import make_env
+    from harness.envs import make_sim
     from tasks import make_task
+    from tasks.env import TaskEnv
 
     task = make_task(task_name, preset=preset)
     cfg = algo_preset(algo_name).replace(num_envs=num_envs, horizon=horizon, max_epochs=epochs)
     torch.manual_seed(seed)
     random.seed(seed)
-    env = make_env(task, backend, num_envs, device, seed, horizon)
+    env = TaskEnv(task, make_sim(backend, task, num_envs, device, seed, horizon, **(options or {})))
     algo = FirstOrderActorCritic(cfg, env.obs_dim, env.action_dim)
     env.reset()
     rows = []
@@ -115,6 +118,7 @@ def grad_paths(
         "num_envs": num_envs,
         "horizon": horizon,
         "seed": seed,
+        "options": dict(options or {}),
         "skip_threshold": limit,
         "summary": summary,
         "rows": rows,
