@@ -375,14 +375,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--timing-envs",
         type=_nonnegative_int,
-        default=64,
+        default=16,
         help="envs of the timed step with gradients (0: accuracy only) (default: %(default)s)",
+    )
+    p.add_argument(
+        "--contact-states",
+        type=_nonnegative_int,
+        default=48,
+        help="states in contact each setting is compared on (a multiple of --num-envs) (default: %(default)s)",
     )
     p.add_argument(
         "--settle",
         type=_nonnegative_int,
-        default=10,
-        help="zero-action steps before the with-contact states (default: %(default)s)",
+        default=30,
+        help="zero-action steps before the states in contact are sampled (default: %(default)s)",
     )
 
     p = sub.add_parser("scaling", help="forward and forward+backward env-steps/s over num_envs: CSV and log-log plot")
@@ -1048,6 +1054,7 @@ def cmd_fd_schemes(args) -> int:
         windows=args.windows,
         seed=args.seed,
         settle=args.settle,
+        contact_states=args.contact_states,
     )
     if args.out:
         print(f"wrote {write_json(args.out + '.json', {**report, 'provenance': provenance()})}")

@@ -1,15 +1,21 @@
-"""Accuracy versus cost of the MuJoCo-Warp adapter's finite-difference schemes.
+"""Accuracy versus cost of the MuJoCo-Warp adapter's finite-difference settings, with and without contact.
 
-For each scheme (``fd_scheme``: central or forward differences) and state step (``fd_eps_state``),
-the per-step Jacobians of ``num_envs`` envs are compared with the float64 MuJoCo C reference
-(:mod:`backends.mujoco_warp.reference`): relative Frobenius error of the state Jacobian and of the
-control Jacobian, the max over envs. Two sets of states:
+Each row of ``GRID`` is a set of the adapter's options: the scheme (``fd_scheme``: central or forward
+differences), the steps (``fd_eps_state``, ``fd_eps_control``) and the perturbed worlds' solver
+settings (``fd_warmstart``: each world's own warm start from zero, or the nominal world's carried
+into its perturbed worlds at every substep; ``fd_tolerance``: the perturbed worlds' solver tolerance,
+0 running the full iteration count). Every row is compared on the same states with the float64 MuJoCo
+C reference (:mod:`backends.mujoco_warp.reference`: central differences with a 1e-6 step, solver
+tolerance 0), by the relative Frobenius error of one control step's Jacobian (state and control
+columns together):
 
-* contact-free: the task's initial states lifted to 2 m (the segment ``gradcheck`` uses), where
-  the step is smooth and the reference is exact; the default scheme must be < 1e-3 here;
-* contact: the task's initial states after ``settle`` zero-action steps (feet or legs on the
-  ground). A control step with contacts is non-smooth (adapter module docstring), so there is no
-  exact reference; the column is reported to show how far the schemes spread, not to rank them.
+* contact-free: the task's initial states lifted to 2 m (the segment ``gradcheck`` uses), where the
+  step is smooth and the reference is exact: the maximum over ``num_envs`` envs;
+* in contact: ``contact_states`` states sampled from random rollouts and kept where MuJoCo C finds a
+  contact (:func:`harness.contact_jacobians.sample_contact_states`, as the in-contact check samples
+  them): the median, the share within 5%, and the median over the states whose friction sticks
+  (where the step is smooth at the reference's scale; where it slides or a contact is made or
+  broken, no finite step is exact).
 
 Cost: the seconds of one control step with gradients (:meth:`MujocoWarpSim.fd_jacobians`, best of
 ``windows`` after a warm-up) for ``timing_envs`` envs on the ground, and the worlds it steps.
@@ -23,46 +29,61 @@ import numpy as np
 import torch
 
 from backends import make
-from backends.mujoco_warp.reference import float64_step_jacobians
+from backends.mujoco_warp.reference import accurate_model, classify_step, float64_step_jacobians
 from tasks import make_task
 
-#: (scheme, state step) pairs measured; the control step stays at the adapter's default
+#: the adapter options of each measured row (the control step stays at the adapter's default unless given)
 GRID = (
-    ("central", 1e-2),
-    ("forward", 1e-2),
-    ("forward", 3e-3),
-    ("forward", 2e-3),
-    ("forward", 1e-3),
-    ("forward", 3e-4),
+    {"fd_scheme": "central", "fd_eps_state": 1e-2},
+    {"fd_scheme": "central", "fd_eps_state": 2e-3},
+    {"fd_scheme": "forward", "fd_eps_state": 2e-3},
+    {"fd_scheme": "forward", "fd_eps_state": 2e-3, "fd_warmstart": "nominal"},
+    {"fd_scheme": "forward", "fd_eps_state": 2e-3, "fd_tolerance": 0.0},
+    {"fd_scheme": "forward", "fd_eps_state": 2e-3, "fd_warmstart": "nominal", "fd_tolerance": 0.0},
+    {"fd_scheme": "forward", "fd_eps_state": 5e-4},
+    {"fd_scheme": "forward", "fd_eps_state": 5e-4, "fd_warmstart": "nominal", "fd_tolerance": 0.0},
+    {"fd_scheme": "forward", "fd_eps_state": 5e-4, "fd_eps_control": 0.1},
 )
 
 
-def _errors(sim, engine: torch.Tensor, control: torch.Tensor) -> tuple[float, float]:
+def _errors(sim, engine: torch.Tensor, control: torch.Tensor, model=None) -> list[float]:
+    """Per env: the relative error of the step's whole Jacobian (state and control columns)."""
     _, jac_state, jac_control = sim.fd_jacobians(engine, control)
-    worst_state = worst_control = 0.0
+    errors = []
     for i in range(engine.shape[0]):
-        _, ref_state, ref_control = float64_step_jacobians(sim, engine[i], control[i])
-        err_state = np.linalg.norm(jac_state[i].numpy() - ref_state) / np.linalg.norm(ref_state)
-        err_control = np.linalg.norm(jac_control[i].numpy() - ref_control) / np.linalg.norm(ref_control)
-        worst_state, worst_control = max(worst_state, err_state), max(worst_control, err_control)
-    return float(worst_state), float(worst_control)
+        _, ref_state, ref_control = float64_step_jacobians(sim, engine[i], control[i], model=model)
+        jac = np.concatenate((jac_state[i].numpy(), jac_control[i].numpy()), axis=1)
+        ref = np.concatenate((ref_state, ref_control), axis=1)
+        errors.append(float(np.linalg.norm(jac - ref) / np.linalg.norm(ref)))
+    return errors
 
 
-def _states(task, sim, num_envs: int, seed: int, settle: int):
-    """(contact-free engine states, on-ground engine states, controls), all (num_envs, .)."""
+def _contact_free(task, sim, num_envs: int, seed: int):
     gen = torch.Generator().manual_seed(seed)
     q, qd = task.sample_initial_state(num_envs, gen)
-    lifted_q = q.clone()
     if task.layout.floating_base:
-        lifted_q[:, 2] = 2.0
-    free = sim.state_from_generalized(lifted_q, qd).engine.detach()
-    sim.reset()
-    with torch.no_grad():
-        for _ in range(settle):
-            sim.step(torch.zeros(num_envs, task.action_dim))
-    ground = sim.state.engine.detach().clone()
+        q[:, 2] = 2.0
     actions = 0.5 * (2.0 * torch.rand(num_envs, task.action_dim, generator=gen) - 1.0)
-    return free, ground, task.actions_to_control(actions)
+    return sim.state_from_generalized(q, qd).engine.detach(), task.actions_to_control(actions)
+
+
+def _contact(task, sim, model, count: int, seed: int, settle: int):
+    """(engine states, controls, classes) of ``count`` states in contact, in batches of the sim's envs."""
+    from harness.contact_jacobians import sample_contact_states
+
+    def in_contact(q, qd, action) -> bool:
+        engine = sim.state_from_generalized(q.expand(sim.num_envs, -1), qd.expand(sim.num_envs, -1)).engine
+        return classify_step(sim, model, engine[0].detach(), task.actions_to_control(action)[0])["contacts"] > 0
+
+    q, qd, actions = sample_contact_states(sim, count, settle, 5, seed, 0.5, in_contact)
+    n = sim.num_envs
+    batches = []
+    for start in range(0, count - count % n, n):
+        engine = sim.state_from_generalized(q[start : start + n], qd[start : start + n]).engine.detach()
+        control = task.actions_to_control(actions[start : start + n])
+        classes = [classify_step(sim, model, engine[i], control[i]) for i in range(n)]
+        batches.append((engine, control, classes))
+    return batches
 
 
 def _step_seconds(sim, windows: int) -> float:
@@ -77,45 +98,69 @@ def _step_seconds(sim, windows: int) -> float:
     return best
 
 
+def _label(options: dict) -> str:
+    return ", ".join(f"{k}={v}" for k, v in options.items())
+
+
 def fd_schemes(
     task_name: str,
     num_envs: int = 8,
-    timing_envs: int = 64,
+    contact_states: int = 48,
+    timing_envs: int = 16,
     windows: int = 3,
     seed: int = 0,
-    settle: int = 10,
+    settle: int = 30,
     grid=GRID,
     progress=print,
 ) -> dict:
-    """One row per (scheme, state step) of ``grid``; see the module docstring."""
+    """One row per option set of ``grid``; see the module docstring. ``contact_states`` is rounded
+    down to a multiple of ``num_envs``."""
     task = make_task(task_name)
+    sampler = make("mujoco_warp", task, num_envs=num_envs, seed=seed)
+    model = accurate_model(sampler.mjm)
+    free, free_control = _contact_free(task, sampler, num_envs, seed)
+    batches = _contact(task, sampler, model, contact_states, seed, settle) if contact_states else []
     rows = []
-    for scheme, eps_state in grid:
-        options = {"fd_scheme": scheme, "fd_eps_state": eps_state}
+    for options in grid:
         sim = make("mujoco_warp", task, num_envs=num_envs, seed=seed, **options)
-        free, ground, control = _states(task, sim, num_envs, seed, settle)
-        free_state, free_control = _errors(sim, free, control)
-        ground_state, ground_control = _errors(sim, ground, control)
+        free_errors = _errors(sim, free, free_control, model)
+        contact_errors, sticking = [], []
+        for engine, control, classes in batches:
+            errors = _errors(sim, engine, control, model)
+            contact_errors += errors
+            sticking += [e for e, c in zip(errors, classes, strict=True) if c["sticking"] and not c["onset"]]
         seconds = float("nan")
         if timing_envs:
-            seconds = _step_seconds(make("mujoco_warp", task, num_envs=timing_envs, seed=seed, **options), windows)
+            timed = make("mujoco_warp", task, num_envs=timing_envs, seed=seed, **options)
+            timed.reset()
+            with torch.no_grad():
+                for _ in range(settle):
+                    timed.step(torch.zeros(timing_envs, task.action_dim))
+            seconds = _step_seconds(timed, windows)
+        contact = np.asarray(contact_errors)
         row = {
-            "fd_scheme": scheme,
-            "fd_eps_state": eps_state,
+            "options": dict(options),
+            "fd_scheme": sim.fd_scheme,
+            "fd_eps_state": sim.fd_eps_state,
             "fd_eps_control": sim.fd_eps_control,
+            "fd_warmstart": sim.fd_warmstart,
+            "fd_tolerance": sim.fd_tolerance,
             "worlds_per_env": sim.worlds_per_env_with_grad,
-            "contact_free_state_error": free_state,
-            "contact_free_control_error": free_control,
-            "contact_state_error": ground_state,
-            "contact_control_error": ground_control,
+            "contact_free_error_max": float(max(free_errors)),
+            "contact_states": int(contact.size),
+            "contact_error_median": float(np.median(contact)) if contact.size else float("nan"),
+            "contact_within_5pct": float(np.mean(contact <= 0.05)) if contact.size else float("nan"),
+            "sticking_states": len(sticking),
+            "sticking_error_median": float(np.median(sticking)) if sticking else float("nan"),
             "timing_envs": timing_envs,
             "seconds_per_step_with_grad": seconds,
             "env_steps_per_s_with_grad": timing_envs / seconds if timing_envs else float("nan"),
         }
         progress(
-            f"  {scheme:8s} eps {eps_state:7.0e}: {row['worlds_per_env']:3d} worlds/env, contact-free error "
-            f"{free_state:.1e} (state) {free_control:.1e} (control), with contact {ground_state:.1e} / "
-            f"{ground_control:.1e}, {seconds:.2f} s per step of {timing_envs} envs"
+            f"  {_label(options)}: {row['worlds_per_env']} worlds/env, "
+            f"contact-free max {row['contact_free_error_max']:.1e}, "
+            f"in contact median {row['contact_error_median']:.2g} ({row['contact_within_5pct']:.0%} within 5%), "
+            f"sticking median {row['sticking_error_median']:.2g}, {seconds:.2f} s per step of {timing_envs} envs"
         )
         rows.append(row)
     return {
@@ -124,7 +169,7 @@ def fd_schemes(
         "settle": settle,
         "seed": seed,
         "windows": windows,
-        "reference": "float64 MuJoCo C central differences (step 1e-6) of the same control step",
+        "reference": "float64 MuJoCo C central differences (step 1e-6, solver tolerance 0) of the same control step",
         "rows": rows,
     }
 
@@ -132,25 +177,27 @@ def fd_schemes(
 def markdown(report: dict, command: str) -> str:
     """The report as a Markdown table, with the command that made it."""
     lines = [
-        f"# MuJoCo-Warp finite-difference schemes, {report['task']}",
+        f"# MuJoCo-Warp finite-difference settings, {report['task']}",
         "",
         f"`{command}`",
         "",
-        f"Errors: relative Frobenius error of one control step's Jacobians against {report['reference']}, "
-        f"max over {report['num_envs']} envs. Contact-free: initial states lifted to 2 m. With contact: after "
-        f"{report['settle']} zero-action steps on the ground (non-smooth: no exact reference; informative). "
-        "Cost: one control step with gradients, best of "
-        f"{report['windows']}.",
+        f"Errors: relative Frobenius error of one control step's Jacobian (state and control columns) against "
+        f"{report['reference']}. Contact-free: the max over {report['num_envs']} initial states lifted to 2 m. "
+        "In contact: states sampled from random rollouts where MuJoCo C finds a contact; the median, the share "
+        "within 5%, and the median over the states whose friction sticks with no contact made or broken. "
+        f"Cost: one control step with gradients on the ground, best of {report['windows']}.",
         "",
-        "| scheme | state step | control step | worlds/env | contact-free state | contact-free control "
-        "| with contact state | with contact control | s per step | env-steps/s with grad |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| scheme | state step | control step | warm start | tolerance | worlds/env | contact-free max "
+        "| in contact: median | within 5% | friction sticking: median | s per step | env-steps/s with grad |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in report["rows"]:
+        tolerance = "model's" if r["fd_tolerance"] is None else f"{r['fd_tolerance']:g}"
         lines.append(
-            f"| {r['fd_scheme']} | {r['fd_eps_state']:g} | {r['fd_eps_control']:g} | {r['worlds_per_env']} "
-            f"| {r['contact_free_state_error']:.1e} | {r['contact_free_control_error']:.1e} "
-            f"| {r['contact_state_error']:.1e} | {r['contact_control_error']:.1e} "
+            f"| {r['fd_scheme']} | {r['fd_eps_state']:g} | {r['fd_eps_control']:g} | {r['fd_warmstart']} "
+            f"| {tolerance} | {r['worlds_per_env']} | {r['contact_free_error_max']:.1e} "
+            f"| {r['contact_error_median']:.2g} ({r['contact_states']}) | {r['contact_within_5pct']:.0%} "
+            f"| {r['sticking_error_median']:.2g} ({r['sticking_states']}) "
             f"| {r['seconds_per_step_with_grad']:.2f} ({r['timing_envs']} envs) "
             f"| {r['env_steps_per_s_with_grad']:.1f} |"
         )

@@ -67,8 +67,13 @@ def test_fd_schemes_measures_forward_differences_against_the_float64_reference(t
     pytest.importorskip("mujoco_warp")
     from harness.fd_schemes import fd_schemes, markdown
 
-    report = fd_schemes("ant", num_envs=1, timing_envs=0, settle=2, grid=(("forward", 2e-3),), progress=lambda _: None)
-    (row,) = report["rows"]
-    assert row["worlds_per_env"] == 1 + 2 * 14 + 8
-    assert row["contact_free_state_error"] < 1e-3 and row["contact_free_control_error"] < 1e-3
-    assert "| forward | 0.002 | 1 | 37 |" in markdown(report, "cmd")
+    grid = ({"fd_scheme": "forward", "fd_eps_state": 2e-3}, {"fd_warmstart": "nominal", "fd_tolerance": 0.0})
+    report = fd_schemes(
+        "ant", num_envs=2, contact_states=2, timing_envs=0, settle=10, grid=grid, progress=lambda _: None
+    )
+    first, second = report["rows"]
+    assert first["worlds_per_env"] == 1 + 14 * 2 + 8
+    assert first["contact_free_error_max"] < 1e-3 and second["contact_free_error_max"] < 1e-3
+    assert first["contact_states"] == 2 and 0.0 <= first["contact_error_median"] < float("inf")
+    text = markdown(report, "cmd")
+    assert "| forward | 0.002 | 1 | zero | model's | 37 |" in text and "| nominal | 0 | 37 |" in text
