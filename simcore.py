@@ -145,8 +145,8 @@ class PhysicsSpec:
     gravity: float = -9.81  # along z
     ground_plane: bool = True  # a z-up plane through the origin
     contact_ke: float = 4.0e4  # penalty contact: normal stiffness
-    contact_kd: float = 1.0e3  # normal damping (1e4 makes the adjoint blow up: README)
-    contact_kf: float = 3.0e2  # tangential (friction) slope; 3e3 makes policy-driven adjoints explode (README)
+    contact_kd: float = 1.0e3  # normal damping (1e4 makes the adjoint blow up: docs/newton.md)
+    contact_kf: float = 3.0e2  # tangential (friction) slope; 3e3 makes policy-driven adjoints explode (docs/newton.md)
     contact_mu: float = 0.75  # Coulomb friction coefficient
     joint_limit_ke: float = 1.0e3
     joint_limit_kd: float = 1.0e1

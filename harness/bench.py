@@ -61,7 +61,7 @@ CHECK_KINDS = ("gradcheck", "throughput", "crosscheck", "parity", "contact-jacob
 MULTI_BACKEND_KINDS = ("crosscheck", "parity")  # one job over all of a block's backends
 
 # Seconds per env step of a training epoch (simulation with gradients and the updates) on this 2-core
-# CPU, from the runs in results/ (README). Only the first ETA uses them: finished jobs correct them.
+# CPU, from the runs in results/ (docs/cluster.md). Only the first ETA uses them: finished jobs correct them.
 _SECONDS_PER_ENV_STEP = {
     ("newton", "ant"): 1.2e-3,
     ("newton", "go2"): 5e-3,

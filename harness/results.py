@@ -57,7 +57,7 @@ def machine() -> dict:
     """What makes float results machine-specific: CPU model and the thread settings of torch and Warp.
 
     The same seed gives identical metrics on one machine with the same settings; another CPU or thread
-    count changes the order of float reductions, and training runs then diverge (README).
+    count changes the order of float reductions, and training runs then diverge (docs/runs.md, "Reproducibility").
     """
     import torch
 

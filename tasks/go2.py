@@ -10,10 +10,10 @@ in (-1, 1) from the actor; the adapters apply the PD law of :class:`simcore.Phys
 tau = clip(kp (target - q) - kd qd, +-limit), at every substep. Action scale and default pose are
 those of Unitree's own RL setup for the Go2 (unitree_rl_gym ``go2_config``: scale 0.25, hips +-0.1,
 thighs 0.8 front / 1.0 rear, calves -1.5); its gains (kp 20, kd 0.5) let the standing trunk sink to
-the termination height within 300 steps here, so kp 30, kd 0.7 (README "Go2"). The torque limits are
+the termination height within 300 steps here, so kp 30, kd 0.7 (docs/tasks.md, "Go2"). The torque limits are
 the URDF's joint efforts (23.7 N m hip and thigh, 45.43 N m calf).
 
-Reward (differentiable in every term; README writes it out):
+Reward (differentiable in every term; docs/tasks.md, "Go2", writes it out):
 ``v_x + w_up * up_z - w_h * (h - h_target)^2 - w_rate * |a_t - a_{t-1}|^2 - w_tau * |tau|^2``
 with ``v_x`` the trunk's forward (world +x) velocity, ``up_z`` the z component of the trunk's up
 axis, ``h`` the trunk height and ``tau`` the PD torque the targets ask for in the reached state.

@@ -27,7 +27,7 @@ from simcore import TetMeshError, check_tet_mesh, signed_tet_volumes
 @dataclass(frozen=True)
 class TableShape:
     """A slab on four corner legs, in voxels. The defaults give a 2.5 x 2.5 x 1.8 body (x, y, z) of
-    179 vertices and 480 tetrahedra: the size of the peer's jumper (README "SoftJumper")."""
+    179 vertices and 480 tetrahedra: the size of the peer's jumper (docs/tasks.md, "SoftJumper")."""
 
     cells_x: int = 6  # slab voxels along x
     cells_y: int = 6  # slab voxels along y

@@ -188,8 +188,8 @@ def test_newton_action_gradients_in_stance_match_finite_differences(go2):
     without the adapter's restore for the tape's replay d reward / d actions is off by 9.7% here
     (2.0e-3 with it; per coordinate 9.8% and 1.3e-3). Only the action gradient is asserted: the
     state gradient in stance crosses the contact-damping kink (damping acts only while a foot moves
-    into the ground), where central differences measure no derivative (README "Go2 gradients in
-    stance")."""
+    into the ground), where central differences measure no derivative (docs/tasks.md, "Go2
+    gradients")."""
     from harness.gradcheck import DEFAULT_TOLERANCE, gradcheck
 
     sim = make("newton", go2, num_envs=2, seed=1, max_graph_steps=8)

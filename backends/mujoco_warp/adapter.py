@@ -84,7 +84,7 @@ Gradients (:meth:`MujocoWarpSim.fd_jacobians`, :class:`_MujocoWarpStep`):
   of 73 on the Ant, 49 instead of 97 on the Go2), exact in the limit like central differences but with
   a first-order truncation error, so the state step is smaller (default 2e-3 instead of 1e-2; the
   control steps stay). ``python -m harness fd-schemes --task ant`` measures both against the float64
-  MuJoCo C reference (:mod:`backends.mujoco_warp.reference`), with their cost; README has the table.
+  MuJoCo C reference (:mod:`backends.mujoco_warp.reference`), with their cost; docs/performance.md has the table.
 * Cost: 73 worlds per env for a step with grad (central differences), 1 without; on the 2-core CPU, a control step
   takes ~0.1 s without grad for 2 to 64 envs (kernel-launch bound) and, forward + backward,
   ~0.15 s for 2 envs and 2 to 2.7 s for 64 envs (4672 worlds). ``fd_chunk_envs`` (default: all envs)

@@ -162,11 +162,12 @@ class NewtonSim(BatchedSim):
             builder.add_ground_plane(cfg=shape_cfg)
         # The contract differentiates states and controls, never the model's parameters (masses,
         # inertias, gains, contact stiffnesses): a model finalized without gradients makes every adjoint
-        # kernel skip its atomic adds into parameter gradients and the tapes skip zeroing them (README
-        # "Newton without parameter gradients"). States, controls, contacts and Featherstone's per-frame
-        # matrices ask for gradients explicitly below; the solver's remaining model-sized buffers (body
-        # inertias and COM frames) depend on parameters only. Option parameter_gradients=1 restores
-        # them (as Rewarped builds its models), for A/B measurements; nothing reads them.
+        # kernel skip its atomic adds into parameter gradients and the tapes skip zeroing them
+        # (docs/performance.md, "Newton without parameter gradients"). States, controls, contacts and
+        # Featherstone's per-frame matrices ask for gradients explicitly below; the solver's remaining
+        # model-sized buffers (body inertias and COM frames) depend on parameters only. Option
+        # parameter_gradients=1 restores them (as Rewarped builds its models), for A/B measurements;
+        # nothing reads them.
         model = builder.finalize(
             device=self.wp_device, requires_grad=option_flag(self.options, "parameter_gradients", False, self.name)
         )

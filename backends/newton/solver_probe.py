@@ -7,7 +7,7 @@ torso height range, whether the gradient is finite, and its largest entry. A hea
 configuration has a finite forward pass and a finite gradient of moderate size; an exploding
 adjoint shows up as a gradient many orders of magnitude larger than the one-step gradient.
 
-The harness writes the list as JSON; README ("Newton solver choice") quotes it. This module is
+The harness writes the list as JSON; docs/newton.md ("Solver probe") quotes it. This module is
 engine code only: it imports neither the harness nor a task (the asset and physics come as arguments).
 """
 
@@ -121,7 +121,7 @@ def _torso_x(body_q: wp.array[wp.transform], bodies_per_env: int, loss: wp.array
 
 
 def probe_all(ant_asset: str, phys: PhysicsSpec, num_envs: int = 64):
-    """Every configuration of README's table, one result dict at a time."""
+    """Every configuration of the table in docs/newton.md, one result dict at a time."""
     shipped = str(newton.examples.get_asset("nv_ant.xml"))
     runs = [
         ("semi_implicit", ant_asset, None, 4e4, 1e3, 3e2),  # the adapter's configuration (the task's PhysicsSpec)
