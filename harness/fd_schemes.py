@@ -36,13 +36,15 @@ from tasks import make_task
 GRID = (
     {"fd_scheme": "central", "fd_eps_state": 1e-2},
     {"fd_scheme": "central", "fd_eps_state": 2e-3},
+    {"fd_scheme": "central", "fd_eps_state": 5e-4},
     {"fd_scheme": "forward", "fd_eps_state": 2e-3},
-    {"fd_scheme": "forward", "fd_eps_state": 2e-3, "fd_warmstart": "nominal"},
-    {"fd_scheme": "forward", "fd_eps_state": 2e-3, "fd_tolerance": 0.0},
     {"fd_scheme": "forward", "fd_eps_state": 2e-3, "fd_warmstart": "nominal", "fd_tolerance": 0.0},
+    {"fd_scheme": "forward", "fd_eps_state": 1e-3},
     {"fd_scheme": "forward", "fd_eps_state": 5e-4},
     {"fd_scheme": "forward", "fd_eps_state": 5e-4, "fd_warmstart": "nominal", "fd_tolerance": 0.0},
-    {"fd_scheme": "forward", "fd_eps_state": 5e-4, "fd_eps_control": 0.1},
+    {"fd_scheme": "forward", "fd_eps_state": 5e-4, "fd_eps_velocity": 2e-3},
+    {"fd_scheme": "forward", "fd_eps_state": 2e-3, "fd_eps_velocity": 5e-4},
+    {"fd_scheme": "forward", "fd_eps_state": 2.5e-4},
 )
 
 
@@ -142,6 +144,7 @@ def fd_schemes(
             "options": dict(options),
             "fd_scheme": sim.fd_scheme,
             "fd_eps_state": sim.fd_eps_state,
+            "fd_eps_velocity": sim.fd_eps_velocity,
             "fd_eps_control": sim.fd_eps_control,
             "fd_warmstart": sim.fd_warmstart,
             "fd_tolerance": sim.fd_tolerance,
@@ -187,14 +190,16 @@ def markdown(report: dict, command: str) -> str:
         "within 5%, and the median over the states whose friction sticks with no contact made or broken. "
         f"Cost: one control step with gradients on the ground, best of {report['windows']}.",
         "",
-        "| scheme | state step | control step | warm start | tolerance | worlds/env | contact-free max "
+        "| scheme | position step | velocity step | control step | warm start | tolerance | worlds/env "
+        "| contact-free max "
         "| in contact: median | within 5% | friction sticking: median | s per step | env-steps/s with grad |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in report["rows"]:
         tolerance = "model's" if r["fd_tolerance"] is None else f"{r['fd_tolerance']:g}"
         lines.append(
-            f"| {r['fd_scheme']} | {r['fd_eps_state']:g} | {r['fd_eps_control']:g} | {r['fd_warmstart']} "
+            f"| {r['fd_scheme']} | {r['fd_eps_state']:g} | {r['fd_eps_velocity']:g} | {r['fd_eps_control']:g} "
+            f"| {r['fd_warmstart']} "
             f"| {tolerance} | {r['worlds_per_env']} | {r['contact_free_error_max']:.1e} "
             f"| {r['contact_error_median']:.2g} ({r['contact_states']}) | {r['contact_within_5pct']:.0%} "
             f"| {r['sticking_error_median']:.2g} ({r['sticking_states']}) "

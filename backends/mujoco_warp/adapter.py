@@ -222,6 +222,7 @@ class MujocoWarpSim(BatchedSim):
     known_options = (
         "fd_scheme",
         "fd_eps_state",
+        "fd_eps_velocity",
         "fd_eps_control",
         "fd_warmstart",
         "fd_tolerance",
@@ -253,8 +254,10 @@ class MujocoWarpSim(BatchedSim):
         self.fd_chunk_envs = int(self.options.get("fd_chunk_envs", self.num_envs))
         self.nconmax = int(self.options.get("nconmax", 32))
         self.njmax = int(self.options.get("njmax", 160))
-        if not (self.fd_eps_state > 0 and self.fd_eps_control > 0):
-            raise ValueError("fd_eps_state and fd_eps_control must be positive")
+        # the velocities' step, when it should differ from the positions' (default: the same)
+        self.fd_eps_velocity = float(self.options.get("fd_eps_velocity", self.fd_eps_state))
+        if not (self.fd_eps_state > 0 and self.fd_eps_velocity > 0 and self.fd_eps_control > 0):
+            raise ValueError("fd_eps_state, fd_eps_velocity and fd_eps_control must be positive")
         if self.fd_chunk_envs < 1 or self.nconmax < 1 or self.njmax < 1:
             raise ValueError("fd_chunk_envs, nconmax and njmax must be >= 1")
         # the perturbed worlds' constraint solves (module docstring, "Solver settings of the perturbed worlds")
@@ -285,8 +288,9 @@ class MujocoWarpSim(BatchedSim):
         self._data: dict[int, tuple[mjw.Data, dict[str, torch.Tensor]]] = {}
         self._fd_models: dict[int, mjw.Model] = {}
 
-        # central-difference step of every tangent coordinate: 2 nv state coordinates, then the torques
-        eps = [self.fd_eps_state] * (2 * layout.nv) + [self.fd_eps_control] * layout.num_dofs
+        # the step of every tangent coordinate: nv positions, nv velocities, then the controls
+        eps = [self.fd_eps_state] * layout.nv + [self.fd_eps_velocity] * layout.nv
+        eps += [self.fd_eps_control] * layout.num_dofs
         self._fd_steps = torch.tensor(eps, dtype=torch.float64, device=self.device)
 
     def _build_soft(self) -> None:
