@@ -202,6 +202,14 @@ class BatchedSim(ABC):
         """The engine's integrator in words (result files and ``throughput`` name it)."""
         return self.name
 
+    @classmethod
+    def gradient_settings(cls, task) -> dict:
+        """The settings that make this adapter's gradients for ``task`` as it would be built without
+        explicit options (its defaults and the task's ``backend_options``): finite-difference steps and
+        schemes, for example. Empty for exact gradients. A bench run's and a gradient check's address
+        include them, so a changed default is new work rather than a stale result reused."""
+        return {}
+
     def physics_mapping(self) -> dict[str, str]:
         """How this adapter applies each :class:`PhysicsSpec` field to its task: ``{field: text}``, the
         text naming the engine parameter and the conversion, or starting with ``"inert: "`` and saying

@@ -59,6 +59,8 @@ from harness.results import RunError, RunStopped
 PROFILES_DIR = Path(__file__).resolve().parent / "profiles"
 CHECK_KINDS = ("gradcheck", "throughput", "crosscheck", "parity", "contact-jacobians", "grad-paths")
 MULTI_BACKEND_KINDS = ("crosscheck", "parity")  # one job over all of a block's backends
+# checks whose result depends on how an adapter computes gradients (their address includes it)
+GRADIENT_CHECK_KINDS = ("gradcheck", "throughput", "crosscheck", "contact-jacobians", "grad-paths")
 
 # Seconds per env step of a training epoch (simulation with gradients and the updates) on this 2-core
 # CPU, from the runs in results/ (docs/cluster.md). Only the first ETA uses them: finished jobs correct them.
@@ -161,6 +163,23 @@ def _physics_identity(task: str, preset: str) -> dict:
     return json.loads(json.dumps(make_task(task, preset=preset).physics_record()))
 
 
+def gradient_identity(backend_names, task: str, preset: str | None = None) -> dict:
+    """``{"gradients": {backend: settings}}`` for the backends whose gradients depend on settings
+    (:meth:`BatchedSim.gradient_settings`; finite differences), ``{}`` when none does (exact gradients):
+    part of the address of a run and of a check that differentiates, so a changed default is new work."""
+    settings = {b: _gradient_settings(b, task, preset) for b in backend_names}
+    settings = {b: s for b, s in settings.items() if s}
+    return {"gradients": settings} if settings else {}
+
+
+@functools.cache
+def _gradient_settings(backend: str, task: str, preset: str | None) -> dict:
+    import backends
+    from tasks import make_task
+
+    return json.loads(json.dumps(backends.get(backend).gradient_settings(make_task(task, preset=preset))))
+
+
 @dataclasses.dataclass(frozen=True)
 class RunSpec:
     """One training run: everything that determines its result, plus how it is evaluated."""
@@ -199,6 +218,7 @@ class RunSpec:
             "algo": cfg.as_dict(),
             # the physics the run rests on (preset, constants, engine settings): a changed default is a new run
             "physics": physics_identity(self.task, self.preset),
+            **gradient_identity([self.backend], self.task, self.preset),
         }
 
     @property
@@ -437,7 +457,9 @@ def plan(data: dict, store: Path) -> list[Job]:
             else:
                 targets = [(b, ["--backend", b, "--task", task]) for b in blist]
             for label_backend, words in targets:
-                key = _hash([kind, *words, *args, device, physics_identity(task)])
+                differentiates = kind in GRADIENT_CHECK_KINDS
+                gradients = gradient_identity(label_backend.split("-"), task) if differentiates else {}
+                key = _hash([kind, *words, *args, device, physics_identity(task)] + ([gradients] if gradients else []))
                 out = store / "checks" / f"{kind}_{task}_{label_backend}_{key}.json"
                 if kind not in MULTI_BACKEND_KINDS:
                     words = [*words, "--device", device]

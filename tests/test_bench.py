@@ -77,6 +77,30 @@ def test_run_address_is_its_full_config():
     assert base.dirname.startswith("ant_newton_shac_h16_s0_")
 
 
+def test_a_run_is_addressed_by_its_adapters_gradient_settings(monkeypatch):
+    """Finite-difference gradients depend on their steps: a MuJoCo-Warp run's address holds its adapter's
+    settings, so a changed default plans new runs; exact gradients add nothing (Newton's addresses stay)."""
+    pytest.importorskip("mujoco_warp")
+    from backends.mujoco_warp import adapter
+    from harness import bench
+
+    spec = dict(task="ant", algo="shac", seed=0, epochs=10, num_envs=8, horizon=16, device="cpu")
+    newton = RunSpec(backend="newton", **spec)
+    assert "gradients" not in newton.identity()
+    mujoco = RunSpec(backend="mujoco_warp", **spec)
+    settings = mujoco.identity()["gradients"]["mujoco_warp"]
+    assert settings["fd_scheme"] == "forward" and settings["fd_eps_state"] == adapter.FD_EPS_STATE["forward"]
+    before = mujoco.key
+    monkeypatch.setitem(adapter.FD_EPS_STATE, "forward", adapter.FD_EPS_STATE["forward"] / 2)
+    bench._gradient_settings.cache_clear()
+    try:
+        assert mujoco.key != before
+    finally:
+        monkeypatch.undo()
+        bench._gradient_settings.cache_clear()
+    assert mujoco.key == before
+
+
 def test_a_block_may_choose_a_physics_preset(tmp_path):
     """A block's preset is part of its runs' addresses and names; naming the task's default preset
     addresses the same runs as leaving it out."""

@@ -137,6 +137,8 @@ from simcore import (
 )
 
 FD_SCHEMES = ("central", "forward")  # finite-difference schemes of the ``fd_scheme`` option
+#: each scheme's default state step (articulated tasks; module docstring)
+FD_EPS_STATE = {"central": 1e-2, "forward": 2e-3}
 
 _ROOT_Q = 7  # free joint: position (3) + quaternion w, x, y, z (4)
 _ROOT_V = 6  # free joint: linear velocity (3, world frame) + angular velocity (3, body frame)
@@ -204,6 +206,45 @@ def _urdf_without_visuals(path) -> str:
     return ElementTree.tostring(root, encoding="unicode")
 
 
+def fd_settings(task, options: dict) -> dict:
+    """The finite-difference settings of ``task`` under adapter ``options``: each option's value, or
+    its default (module docstring), validated. Articulated tasks: ``fd_scheme`` (forward),
+    ``fd_eps_state`` (positions), ``fd_eps_velocity`` (default: the positions' step),
+    ``fd_eps_control``, ``fd_warmstart`` and ``fd_tolerance`` (the perturbed worlds' solves); soft
+    bodies: central differences, ``fd_eps_state`` and ``fd_eps_control``."""
+    soft = task.control_kind == ControlKind.TET_ACTIVATION
+    position_control = task.control_kind == ControlKind.JOINT_POSITION_TARGET
+    scheme = str(options.get("fd_scheme", "central" if soft else "forward"))
+    if scheme not in FD_SCHEMES:
+        raise ValueError(f"fd_scheme must be one of {', '.join(FD_SCHEMES)}, got {scheme!r}")
+    if soft:  # not measured against a reference for soft bodies: kept central
+        settings = {
+            "fd_scheme": scheme,
+            "fd_eps_state": float(options.get("fd_eps_state", 1e-3)),
+            "fd_eps_control": float(options.get("fd_eps_control", 1e-2)),
+        }
+    else:
+        eps_state = float(options.get("fd_eps_state", FD_EPS_STATE[scheme]))
+        tolerance = options.get("fd_tolerance")
+        settings = {
+            "fd_scheme": scheme,
+            "fd_eps_state": eps_state,
+            "fd_eps_velocity": float(options.get("fd_eps_velocity", eps_state)),
+            # 1 N m of torque, or 1e-2 rad of PD target (x kp = 0.3 N m on the Go2); module docstring
+            "fd_eps_control": float(options.get("fd_eps_control", 1e-2 if position_control else 1.0)),
+            "fd_warmstart": str(options.get("fd_warmstart", "zero")),
+            "fd_tolerance": None if tolerance is None else float(tolerance),
+        }
+        if settings["fd_warmstart"] not in ("zero", "nominal"):
+            raise ValueError(f"fd_warmstart must be zero or nominal, got {settings['fd_warmstart']!r}")
+        if settings["fd_tolerance"] is not None and not settings["fd_tolerance"] >= 0:
+            raise ValueError(f"fd_tolerance must be >= 0, got {tolerance!r}")
+    for name in ("fd_eps_state", "fd_eps_velocity", "fd_eps_control"):
+        if name in settings and not settings[name] > 0:
+            raise ValueError(f"{name} must be positive, got {settings[name]!r}")
+    return settings
+
+
 class MujocoWarpSim(BatchedSim):
     """A task on MuJoCo-Warp with finite-difference gradients; see the module docstring.
 
@@ -244,30 +285,14 @@ class MujocoWarpSim(BatchedSim):
             return self._build_soft()
         if task.layout.num_particles:
             raise BackendError("the mujoco_warp adapter runs particles only as a soft body (tet activations)")
-        # forward differences by default: half the worlds, contact-free error < 1e-3 (module docstring)
-        self._read_fd_scheme("forward")
-        # a forward difference's truncation error is first order: a smaller state step (module docstring)
-        self.fd_eps_state = float(self.options.get("fd_eps_state", 1e-2 if self.fd_scheme == "central" else 2e-3))
+        for name, value in fd_settings(task, self.options).items():
+            setattr(self, name, value)
         self.position_control = task.control_kind == ControlKind.JOINT_POSITION_TARGET
-        # 1 N m of torque, or 1e-2 rad of PD target (x kp = 0.3 N m on the Go2); module docstring
-        self.fd_eps_control = float(self.options.get("fd_eps_control", 1e-2 if self.position_control else 1.0))
         self.fd_chunk_envs = int(self.options.get("fd_chunk_envs", self.num_envs))
         self.nconmax = int(self.options.get("nconmax", 32))
         self.njmax = int(self.options.get("njmax", 160))
-        # the velocities' step, when it should differ from the positions' (default: the same)
-        self.fd_eps_velocity = float(self.options.get("fd_eps_velocity", self.fd_eps_state))
-        if not (self.fd_eps_state > 0 and self.fd_eps_velocity > 0 and self.fd_eps_control > 0):
-            raise ValueError("fd_eps_state, fd_eps_velocity and fd_eps_control must be positive")
         if self.fd_chunk_envs < 1 or self.nconmax < 1 or self.njmax < 1:
             raise ValueError("fd_chunk_envs, nconmax and njmax must be >= 1")
-        # the perturbed worlds' constraint solves (module docstring, "Solver settings of the perturbed worlds")
-        self.fd_warmstart = str(self.options.get("fd_warmstart", "zero"))
-        if self.fd_warmstart not in ("zero", "nominal"):
-            raise ValueError(f"fd_warmstart must be zero or nominal, got {self.fd_warmstart!r}")
-        tolerance = self.options.get("fd_tolerance")
-        self.fd_tolerance = None if tolerance is None else float(tolerance)
-        if self.fd_tolerance is not None and not self.fd_tolerance >= 0:
-            raise ValueError(f"fd_tolerance must be >= 0, got {tolerance!r}")
 
         self.mjm = build_spec(task).compile()
         layout = task.layout
@@ -299,14 +324,11 @@ class MujocoWarpSim(BatchedSim):
         task, layout = self.task, self.task.layout
         self.checked_soft_body()
         self.position_control = False
-        self._read_fd_scheme("central")  # not measured against a reference for soft bodies: kept central
-        self.fd_eps_state = float(self.options.get("fd_eps_state", 1e-3))
-        self.fd_eps_control = float(self.options.get("fd_eps_control", 1e-2))
+        for name, value in fd_settings(task, self.options).items():
+            setattr(self, name, value)
         self.fd_chunk_worlds = int(self.options.get("fd_chunk_worlds", 256))
         self.nconmax = int(self.options.get("nconmax", 128))
         self.njmax = int(self.options.get("njmax", 512))
-        if not (self.fd_eps_state > 0 and self.fd_eps_control > 0):
-            raise ValueError("fd_eps_state and fd_eps_control must be positive")
         if self.fd_chunk_worlds < 1 or self.nconmax < 1 or self.njmax < 1:
             raise ValueError("fd_chunk_worlds, nconmax and njmax must be >= 1")
         self.soft_models = SoftEnvModels(task, self.num_envs, self.stepper, self.device, self.nconmax, self.njmax)
@@ -356,10 +378,10 @@ class MujocoWarpSim(BatchedSim):
         mapping.update(inert_by_definition(self.task))
         return mapping
 
-    def _read_fd_scheme(self, default: str) -> None:
-        self.fd_scheme = str(self.options.get("fd_scheme", default))
-        if self.fd_scheme not in FD_SCHEMES:
-            raise ValueError(f"fd_scheme must be one of {', '.join(FD_SCHEMES)}, got {self.fd_scheme!r}")
+    @classmethod
+    def gradient_settings(cls, task) -> dict:
+        """:meth:`BatchedSim.gradient_settings`: the finite-difference settings (:func:`fd_settings`)."""
+        return fd_settings(task, dict(getattr(task, "backend_options", {}).get(cls.name, {})))
 
     @property
     def layout(self) -> StateLayout:
