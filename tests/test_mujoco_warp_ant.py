@@ -171,7 +171,7 @@ def test_perturbed_solver_settings_leave_the_nominal_world_and_smooth_jacobians_
     with torch.no_grad():
         plain = sim.simulate(sim._state_from_engine(engine), control).engine
     _, jac_state, jac_control = sim.fd_jacobians(engine, control)
-    tuned = make("mujoco_warp", ant, num_envs=2, seed=1, fd_warmstart="nominal", fd_tolerance=0.0)
+    tuned = make("mujoco_warp", ant, num_envs=2, seed=1, fd_scheme="central", fd_warmstart="nominal", fd_tolerance=0.0)
     nominal, jac_state_t, jac_control_t = tuned.fd_jacobians(engine, control)
     assert torch.equal(plain, nominal)
     assert (jac_state_t - jac_state).norm() / jac_state.norm() < 1e-3
@@ -212,10 +212,18 @@ def _tangent_rows(jac: np.ndarray, next_engine: np.ndarray) -> np.ndarray:
     return np.concatenate((jac[0:3], 2.0 * e_conj @ jac[3:7], jac[7:]))
 
 
+#: contact-free accuracy of each scheme at its default steps (relative Frobenius error, per env). The
+#: default state steps are small (central 5e-4, forward 2.5e-4) because in contact a larger step straddles
+#: the contacts' switches (``harness fd-schemes``: median error in contact ~1e-3 against 0.1-0.5 at 2e-3);
+#: off the ground they cost float32 round-off: A measures ~1e-3 (central) and ~3.4e-3 (forward), against
+#: ~6e-5 and ~8e-4 with the former steps (1e-2 and 2e-3)
+CONTACT_FREE_BOUND = {"central": 2e-3, "forward": 5e-3}
+
+
 @pytest.mark.parametrize("scheme", FD_SCHEMES)
 def test_step_jacobians_match_mujoco_transition_fd(ant, scheme):
     """Contact-free state, each scheme at its default steps; measured max relative error (Frobenius,
-    per env) for A and B: central ~6e-5 and ~4e-5, forward ~8e-4 and ~5e-5."""
+    per env) for A and B: central ~1e-3 and ~3e-5, forward ~3.4e-3 and ~7e-5 (CONTACT_FREE_BOUND)."""
     sim = make("mujoco_warp", ant, num_envs=2, seed=1, fd_scheme=scheme)
     gen = torch.Generator().manual_seed(4)
     q, qd = ant.sample_initial_state(2, gen)
@@ -231,7 +239,7 @@ def test_step_jacobians_match_mujoco_transition_fd(ant, scheme):
         err_a = np.linalg.norm(a - a_ref) / np.linalg.norm(a_ref)
         err_b = np.linalg.norm(b - b_ref) / np.linalg.norm(b_ref)
         print(f"{scheme} env {i}: Jacobian vs mjd_transitionFD, relative error A {err_a:.2e}, B {err_b:.2e}")
-        assert err_a < 1e-3 and err_b < 1e-3, (err_a, err_b)
+        assert err_a < CONTACT_FREE_BOUND[scheme] and err_b < CONTACT_FREE_BOUND[scheme], (err_a, err_b)
 
 
 def test_the_float64_whole_step_reference_agrees_with_mjd_transition_fd(sim, ant):

@@ -67,7 +67,10 @@ def test_fd_schemes_measures_forward_differences_against_the_float64_reference(t
     pytest.importorskip("mujoco_warp")
     from harness.fd_schemes import fd_schemes, markdown
 
-    grid = ({"fd_scheme": "forward", "fd_eps_state": 2e-3}, {"fd_warmstart": "nominal", "fd_tolerance": 0.0})
+    grid = (
+        {"fd_scheme": "forward", "fd_eps_state": 2e-3},
+        {"fd_scheme": "forward", "fd_eps_state": 2e-3, "fd_warmstart": "nominal", "fd_tolerance": 0.0},
+    )
     report = fd_schemes(
         "ant", num_envs=2, contact_states=2, timing_envs=0, settle=10, grid=grid, progress=lambda _: None
     )

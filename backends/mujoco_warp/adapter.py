@@ -79,12 +79,25 @@ Gradients (:meth:`MujocoWarpSim.fd_jacobians`, :class:`_MujocoWarpStep`):
   check at < 1e-3): steps (state, target) of (1e-2, 1e-2) give 1.8e-5 and 1.8e-5; (3e-3, 3e-3) 5.4e-5
   and 4.8e-5; (1e-3, 1e-3) 1.5e-4 and 1.4e-4; a target step of 3e-2 or 1e-1 gives 5.0e-6 or 1.6e-6
   (again nearly affine), but 1e-2 rad (0.3 N m through kp = 30) keeps both steps in one neighbourhood.
-* Schemes (option ``fd_scheme``): ``central`` as above, or ``forward``, one-sided differences from the
-  nominal world, ``(f(x + eps e_i) - f(x)) / eps``: 1 + P worlds per env instead of 1 + 2P (37 instead
-  of 73 on the Ant, 49 instead of 97 on the Go2), exact in the limit like central differences but with
-  a first-order truncation error, so the state step is smaller (default 2e-3 instead of 1e-2; the
-  control steps stay). ``python -m harness fd-schemes --task ant`` measures both against the float64
-  MuJoCo C reference (:mod:`backends.mujoco_warp.reference`), with their cost; docs/performance.md has the table.
+* Schemes (option ``fd_scheme``): ``central`` as above, or ``forward`` (the default), one-sided
+  differences from the nominal world, ``(f(x + eps e_i) - f(x)) / eps``: 1 + P worlds per env instead
+  of 1 + 2P (37 instead of 73 on the Ant, 49 instead of 97 on the Go2), exact in the limit like central
+  differences but with a first-order truncation error.
+* Steps in contact. The table above is contact-free. In contact, a control step is smooth only between
+  the contacts' switches (a contact's constraint activating, friction reaching its cone), and a state
+  step straddles them the more often the larger it is; what matters is the position step
+  (``fd_eps_state``; ``fd_eps_velocity`` sets the velocities' separately). ``python -m harness
+  fd-schemes --task ant|go2`` measures every setting against the float64 MuJoCo C reference
+  (:mod:`backends.mujoco_warp.reference`) at states sampled in contact and off the ground, with its
+  cost (results/mujoco_warp_fd_schemes_*.md): forward differences with a 2e-3 step have a median
+  in-contact error of 0.12 (Ant) and 0.54 (Go2), with 5e-4 0.0009 and 0.0025, with 2.5e-4 0.001 and
+  0.0017 (81% and 100% of states within 5%), at the same cost; off the ground the smaller step costs
+  round-off (max 2.9e-3 and 5.5e-4 against 9e-4 and 1.4e-4). The defaults are therefore 2.5e-4
+  (forward) and 5e-4 (central; 1e-2 above is its contact-free optimum, 0.35 / 0.44 in contact). The
+  perturbed worlds' solver settings make no measurable difference (``fd_warmstart=nominal`` carries
+  the nominal world's warm start into its perturbed worlds at every substep; ``fd_tolerance=0`` runs
+  their solves to the full iteration count; both change errors in the fourth digit and cost up to
+  40% more), so they stay off.
 * Cost: 73 worlds per env for a step with grad (central differences), 1 without; on the 2-core CPU, a control step
   takes ~0.1 s without grad for 2 to 64 envs (kernel-launch bound) and, forward + backward,
   ~0.15 s for 2 envs and 2 to 2.7 s for 64 envs (4672 worlds). ``fd_chunk_envs`` (default: all envs)
@@ -137,8 +150,9 @@ from simcore import (
 )
 
 FD_SCHEMES = ("central", "forward")  # finite-difference schemes of the ``fd_scheme`` option
-#: each scheme's default state step (articulated tasks; module docstring)
-FD_EPS_STATE = {"central": 1e-2, "forward": 2e-3}
+#: each scheme's default state step, positions and velocities alike (articulated tasks; module docstring,
+#: "Steps in contact")
+FD_EPS_STATE = {"central": 5e-4, "forward": 2.5e-4}
 
 _ROOT_Q = 7  # free joint: position (3) + quaternion w, x, y, z (4)
 _ROOT_V = 6  # free joint: linear velocity (3, world frame) + angular velocity (3, body frame)
