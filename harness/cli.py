@@ -889,19 +889,22 @@ def cmd_grad_paths(args) -> int:
     if args.out:
         _check_output_file(args.out)
     print(f"grad-paths {args.algo} on {args.backend}/{args.task}: {args.epochs} epochs, four rollouts of each window")
-    result = grad_paths(
-        args.task,
-        args.backend,
-        algo_name=args.algo,
-        epochs=args.epochs,
-        num_envs=args.num_envs,
-        horizon=args.horizon,
-        seed=args.seed,
-        preset=args.preset,
-        device=args.device,
-        options=dict(args.backend_option or []),
-        progress=lambda line: print(line, flush=True),
-    )
+    try:
+        result = grad_paths(
+            args.task,
+            args.backend,
+            algo_name=args.algo,
+            epochs=args.epochs,
+            num_envs=args.num_envs,
+            horizon=args.horizon,
+            seed=args.seed,
+            preset=args.preset,
+            device=args.device,
+            options=dict(args.backend_option or []),
+            progress=lambda line: print(line, flush=True),
+        )
+    except ValueError as exc:  # an invalid configuration or adapter option, refused before any work
+        raise BadInput(str(exc)) from None
     text = table(result)
     print(text)
     if args.out:

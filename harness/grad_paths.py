@@ -65,11 +65,14 @@ def grad_paths(
     from tasks import make_task
     from tasks.env import TaskEnv
 
-    task = make_task(task_name, preset=preset)
-    cfg = algo_preset(algo_name).replace(num_envs=num_envs, horizon=horizon, max_epochs=epochs)
-    torch.manual_seed(seed)
-    random.seed(seed)
-    env = TaskEnv(task, make_sim(backend, task, num_envs, device, seed, horizon, **(options or {})))
+    try:  # the configuration and the adapter's options, refused before any work as a ValueError
+        task = make_task(task_name, preset=preset)
+        cfg = algo_preset(algo_name).replace(num_envs=num_envs, horizon=horizon, max_epochs=epochs)
+        torch.manual_seed(seed)
+        random.seed(seed)
+        env = TaskEnv(task, make_sim(backend, task, num_envs, device, seed, horizon, **(options or {})))
+    except (KeyError, RuntimeError, ValueError) as exc:
+        raise ValueError(f"grad-paths {backend}/{task_name}: {exc}") from exc
     algo = FirstOrderActorCritic(cfg, env.obs_dim, env.action_dim)
     env.reset()
     rows = []

@@ -28,7 +28,15 @@ def test_the_training_variant_is_the_gradient_training_logs_and_one_step_has_no_
     assert two["no feedback"] != two["as in training"]
 
 
-def test_bad_input_is_one_line(capsys):
-    assert cli(["grad-paths", "--backend", "newton", "--task", "ant", "--algo", "ppo"]) == 2
+@pytest.mark.parametrize(
+    "extra, needle",
+    [
+        (["--algo", "ppo"], "ppo"),
+        (["--backend-option", "graph_capture=2"], "graph_capture"),
+        (["--num-envs", "6"], "num_envs=6"),
+    ],
+)
+def test_bad_input_is_one_line(capsys, extra, needle):
+    assert cli(["grad-paths", "--backend", "newton", "--task", "ant", "--epochs", "1", *extra]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.count("\n") == 0 and "ppo" in err
+    assert err.count("\n") == 0 and needle in err, err
