@@ -163,6 +163,12 @@ def _physics_identity(task: str, preset: str) -> dict:
     return json.loads(json.dumps(make_task(task, preset=preset).physics_record()))
 
 
+def _preset_suffix(args: list[str]) -> str:
+    """``.PRESET`` when a check's arguments name a physics preset (two checks of a task on different
+    presets keep apart labels), else ``""``."""
+    return f".{args[args.index('--preset') + 1]}" if "--preset" in args[:-1] else ""
+
+
 def gradient_identity(backend_names, task: str, preset: str | None = None) -> dict:
     """``{"gradients": {backend: settings}}`` for the backends whose gradients depend on settings
     (:meth:`BatchedSim.gradient_settings`; finite differences), ``{}`` when none does (exact gradients):
@@ -465,7 +471,7 @@ def plan(data: dict, store: Path) -> list[Job]:
                     words = [*words, "--device", device]
                 jobs.append(
                     Job(
-                        label=f"{kind} {label_backend}/{task}",
+                        label=f"{kind} {label_backend}/{task}{_preset_suffix(args)}",
                         kind=kind,
                         argv=_harness(kind, *words, *args, "--out", out),
                         output=out,
