@@ -262,11 +262,12 @@ def fd_settings(task, options: dict) -> dict:
 class MujocoWarpSim(BatchedSim):
     """A task on MuJoCo-Warp with finite-difference gradients; see the module docstring.
 
-    Options: ``fd_eps_state`` (default 1e-2) and ``fd_eps_control`` (default 1.0 N m) central-difference
-    steps; ``fd_chunk_envs`` (default: all envs) envs per finite-difference batch; ``nconmax`` (default
-    32) contacts and ``njmax`` (default 160) constraint rows per world (the Ant's 13 geoms on the plane
-    make at most 25 contacts, 4 rows each in the pyramidal cone, plus 8 joint-limit rows; an overflow
-    raises :class:`BackendError`). The contract's ``max_graph_steps`` is not needed: the Jacobians
+    Options: the finite-difference settings of :func:`fd_settings` (``fd_scheme``, ``fd_eps_state``,
+    ``fd_eps_velocity``, ``fd_eps_control``, ``fd_warmstart``, ``fd_tolerance``); ``fd_chunk_envs``
+    (default: all envs) envs per finite-difference batch; ``nconmax`` (default 32) contacts and
+    ``njmax`` (default 160) constraint rows per world (the Ant's 13 geoms on the plane make at most 25
+    contacts, 4 rows each in the pyramidal cone, plus 8 joint-limit rows; an overflow raises
+    :class:`BackendError`). The contract's ``max_graph_steps`` is not needed: the Jacobians
     live in the autograd graph, so there is no buffer ring to size. Control kinds: joint torques,
     joint position targets (the PD law per substep) and tet activations (soft bodies: options
     ``fd_chunk_worlds``, default 256, and ``nconmax`` 128 / ``njmax`` 512 per world).
