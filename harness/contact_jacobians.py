@@ -278,7 +278,7 @@ def contact_jacobians(
         )
 
     sources = [("random actions", states - states // 2 if policy_epochs else states, None)]
-    if policy_epochs:
+    if policy_epochs and states // 2:
         progress(f"training the sampling policy: SHAC, {policy_epochs} epochs on newton")
         policy = train_policy(task, policy_epochs, seed)
         sources.append((f"SHAC policy after {policy_epochs} epochs", states // 2, policy))
