@@ -845,6 +845,8 @@ def sim_to_sim_table(runs: list[RunRecord]) -> pd.DataFrame:
                     "task": run.task,
                     "algo": run.algo,
                     "horizon": run.horizon,
+                    "num_envs": run.num_envs,
+                    "epochs": run.planned_epochs,
                     "seed": run.seed,
                     "trained_on": trained_on,
                     "evaluated_on": evaluated_on,
@@ -856,14 +858,15 @@ def sim_to_sim_table(runs: list[RunRecord]) -> pd.DataFrame:
                     "same_protocol": _protocol(own) == _protocol(other) if own else None,
                 }
             )
-    columns = ["run", "task", "algo", "horizon", "seed", "trained_on", "evaluated_on", "own_return"]
-    columns += ["other_return", "gap", "own_source", "other_source", "same_protocol"]
+    columns = ["run", "task", "algo", "horizon", "num_envs", "epochs", "seed", "trained_on", "evaluated_on"]
+    columns += ["own_return", "other_return", "gap", "own_source", "other_source", "same_protocol"]
     return pd.DataFrame(rows, columns=columns)
 
 
 def sim_to_sim_mean_table(per_run: pd.DataFrame) -> pd.DataFrame:
-    """Mean over seeds of :func:`sim_to_sim_table` per (task, algo, horizon, trained_on, evaluated_on)."""
-    keys = ["task", "algo", "horizon", "trained_on", "evaluated_on"]
+    """Mean over seeds of :func:`sim_to_sim_table` per (task, algo, horizon, envs, planned epochs,
+    trained_on, evaluated_on): runs of different settings are never pooled."""
+    keys = ["task", "algo", "horizon", "num_envs", "epochs", "trained_on", "evaluated_on"]
     columns = [*keys, "seeds", "own_return_mean", "other_return_mean", "gap_mean", "gap_std"]
     if per_run.empty:
         return pd.DataFrame(columns=columns)
@@ -1447,7 +1450,7 @@ def sim_to_sim_document(runs: list[RunRecord]) -> Table:
         [
             Section(
                 s2s,
-                _key_columns("task", "algo", "horizon", "seed", "trained_on", "evaluated_on")
+                _key_columns("task", "algo", "horizon", "num_envs", "epochs", "seed", "trained_on", "evaluated_on")
                 + [
                     ("return where trained", "own_return"),
                     ("return on other", "other_return"),
@@ -1459,7 +1462,7 @@ def sim_to_sim_document(runs: list[RunRecord]) -> Table:
             ),
             Section(
                 sim_to_sim_mean_table(s2s),
-                _key_columns("task", "algo", "horizon", "trained_on", "evaluated_on", "seeds")
+                _key_columns("task", "algo", "horizon", "num_envs", "epochs", "trained_on", "evaluated_on", "seeds")
                 + [
                     ("mean return where trained", "own_return_mean"),
                     ("mean return on other", "other_return_mean"),
