@@ -76,6 +76,18 @@ def train_policy(task, epochs: int, seed: int, device: str = "cpu"):
     return algo
 
 
+def contact_predicate(mjw_sim, model):
+    """``in_contact(q, qd, action)``: whether MuJoCo C (``model``, the task's on ``mjw_sim``) finds a
+    contact stepping one env's state through that action's control step (the samplers' filter)."""
+    task, n = mjw_sim.task, mjw_sim.num_envs
+
+    def in_contact(q, qd, action) -> bool:
+        engine = mjw_sim.state_from_generalized(q.expand(n, -1), qd.expand(n, -1)).engine[0].detach()
+        return classify_step(mjw_sim, model, engine, task.actions_to_control(action)[0])["contacts"] > 0
+
+    return in_contact
+
+
 def sample_contact_states(
     sim, count: int, settle: int, stride: int, seed: int, action_scale: float, in_contact, policy=None
 ):
@@ -271,12 +283,7 @@ def contact_jacobians(
     mjw_sim = sim if backend == "mujoco_warp" else make_sim("mujoco_warp", task, num_envs, seed=seed, horizon=4)
     model = accurate_model(mjw_sim.mjm)
 
-    def in_contact(q, qd, action) -> bool:
-        engine = mjw_sim.state_from_generalized(q.expand(mjw_sim.num_envs, -1), qd.expand(mjw_sim.num_envs, -1))
-        return (
-            classify_step(mjw_sim, model, engine.engine[0].detach(), task.actions_to_control(action)[0])["contacts"] > 0
-        )
-
+    in_contact = contact_predicate(mjw_sim, model)
     sources = [("random actions", states - states // 2 if policy_epochs else states, None)]
     if policy_epochs and states // 2:
         progress(f"training the sampling policy: SHAC, {policy_epochs} epochs on newton")

@@ -71,13 +71,9 @@ def _contact_free(task, sim, num_envs: int, seed: int):
 
 def _contact(task, sim, model, count: int, seed: int, settle: int):
     """(engine states, controls, classes) of ``count`` states in contact, in batches of the sim's envs."""
-    from harness.contact_jacobians import sample_contact_states
+    from harness.contact_jacobians import contact_predicate, sample_contact_states
 
-    def in_contact(q, qd, action) -> bool:
-        engine = sim.state_from_generalized(q.expand(sim.num_envs, -1), qd.expand(sim.num_envs, -1)).engine
-        return classify_step(sim, model, engine[0].detach(), task.actions_to_control(action)[0])["contacts"] > 0
-
-    q, qd, actions = sample_contact_states(sim, count, settle, 5, seed, 0.5, in_contact)
+    q, qd, actions = sample_contact_states(sim, count, settle, 5, seed, 0.5, contact_predicate(sim, model))
     n = sim.num_envs
     batches = []
     for start in range(0, count - count % n, n):

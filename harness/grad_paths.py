@@ -102,9 +102,9 @@ def grad_paths(
         progress(f"  epoch {epoch + 1}/{epochs}: {shown}")
     limit = cfg.max_grad_norm_skip
     summary = {}
+    full = torch.tensor([r["norms"]["as in training"] for r in rows], dtype=torch.float64)
     for label, _, _ in VARIANTS:
         values = torch.tensor([r["norms"][label] for r in rows], dtype=torch.float64)
-        full = torch.tensor([r["norms"]["as in training"] for r in rows], dtype=torch.float64)
         finite = torch.isfinite(values) & torch.isfinite(full) & (full > 0)
         summary[label] = {
             "median_norm": float(values.nanmedian()),
