@@ -17,6 +17,12 @@ columns together):
   (where the step is smooth at the reference's scale; where it slides or a contact is made or
   broken, no finite step is exact).
 
+Each error is also split by the kind of column (positions, velocities, controls: the relative error
+of that block), since each kind has its own step. The grid varies the position and velocity steps;
+the control step is varied after it, at the adapter's default scheme, by the factors of
+``CONTROL_FACTORS`` around the task's default control step (N m for torques, rad for position
+targets).
+
 Cost: the seconds of one control step with gradients (:meth:`MujocoWarpSim.fd_jacobians`, best of
 ``windows`` after a warm-up) for ``timing_envs`` envs on the ground, and the worlds it steps.
 """
@@ -29,6 +35,7 @@ import numpy as np
 import torch
 
 from backends import make
+from backends.mujoco_warp.adapter import fd_settings
 from backends.mujoco_warp.reference import accurate_model, classify_step, float64_step_jacobians
 from tasks import make_task
 
@@ -46,17 +53,41 @@ GRID = (
     {"fd_scheme": "forward", "fd_eps_state": 2e-3, "fd_eps_velocity": 5e-4},
     {"fd_scheme": "forward", "fd_eps_state": 2.5e-4},
 )
+#: the control step's rows: the adapter's default settings with the control step times each factor
+CONTROL_FACTORS = (0.01, 0.1, 10.0)
+#: the column blocks of a step's Jacobian, in the adapter's order
+KINDS = ("position", "velocity", "control")
 
 
-def _errors(sim, engine: torch.Tensor, control: torch.Tensor, model=None) -> list[float]:
-    """Per env: the relative error of the step's whole Jacobian (state and control columns)."""
-    _, jac_state, jac_control = sim.fd_jacobians(engine, control)
-    errors = []
+def control_rows(task, factors=CONTROL_FACTORS) -> tuple[dict, ...]:
+    """The adapter's default settings for ``task`` with the control step scaled by each factor."""
+    default = fd_settings(task, {})
+    return tuple(
+        {"fd_scheme": default["fd_scheme"], "fd_eps_control": default["fd_eps_control"] * f} for f in factors
+    )
+
+
+def _references(sim, engine: torch.Tensor, control: torch.Tensor, model) -> list[np.ndarray]:
+    """Per env: the float64 reference Jacobian (state and control columns) of its control step."""
+    refs = []
     for i in range(engine.shape[0]):
         _, ref_state, ref_control = float64_step_jacobians(sim, engine[i], control[i], model=model)
+        refs.append(np.concatenate((ref_state, ref_control), axis=1))
+    return refs
+
+
+def _errors(sim, engine: torch.Tensor, control: torch.Tensor, refs: list[np.ndarray]) -> list[dict]:
+    """Per env: the relative error of the step's whole Jacobian and of each kind's column block."""
+    _, jac_state, jac_control = sim.fd_jacobians(engine, control)
+    nv = sim.layout.nv
+    blocks = {"position": slice(0, nv), "velocity": slice(nv, 2 * nv), "control": slice(2 * nv, None)}
+    errors = []
+    for i, ref in enumerate(refs):
         jac = np.concatenate((jac_state[i].numpy(), jac_control[i].numpy()), axis=1)
-        ref = np.concatenate((ref_state, ref_control), axis=1)
-        errors.append(float(np.linalg.norm(jac - ref) / np.linalg.norm(ref)))
+        row = {"all": float(np.linalg.norm(jac - ref) / np.linalg.norm(ref))}
+        for kind, cols in blocks.items():
+            row[kind] = float(np.linalg.norm(jac[:, cols] - ref[:, cols]) / np.linalg.norm(ref[:, cols]))
+        errors.append(row)
     return errors
 
 
@@ -80,7 +111,7 @@ def _contact(task, sim, model, count: int, seed: int, settle: int):
         engine = sim.state_from_generalized(q[start : start + n], qd[start : start + n]).engine.detach()
         control = task.actions_to_control(actions[start : start + n])
         classes = [classify_step(sim, model, engine[i], control[i]) for i in range(n)]
-        batches.append((engine, control, classes))
+        batches.append((engine, control, classes, _references(sim, engine, control, model)))
     return batches
 
 
@@ -109,24 +140,26 @@ def fd_schemes(
     seed: int = 0,
     settle: int = 30,
     grid=GRID,
+    control_factors=CONTROL_FACTORS,
     progress=print,
 ) -> dict:
-    """One row per option set of ``grid``; see the module docstring. ``contact_states`` is rounded
-    down to a multiple of ``num_envs``."""
+    """One row per option set of ``grid``, then one per control-step factor; see the module
+    docstring. ``contact_states`` is rounded down to a multiple of ``num_envs``."""
     task = make_task(task_name)
     sampler = make("mujoco_warp", task, num_envs=num_envs, seed=seed)
     model = accurate_model(sampler.mjm)
     free, free_control = _contact_free(task, sampler, num_envs, seed)
+    free_refs = _references(sampler, free, free_control, model)
     batches = _contact(task, sampler, model, contact_states, seed, settle) if contact_states else []
     rows = []
-    for options in grid:
+    for options in tuple(grid) + control_rows(task, control_factors):
         sim = make("mujoco_warp", task, num_envs=num_envs, seed=seed, **options)
-        free_errors = _errors(sim, free, free_control, model)
+        free_errors = [e["all"] for e in _errors(sim, free, free_control, free_refs)]
         contact_errors, sticking = [], []
-        for engine, control, classes in batches:
-            errors = _errors(sim, engine, control, model)
+        for engine, control, classes, refs in batches:
+            errors = _errors(sim, engine, control, refs)
             contact_errors += errors
-            sticking += [e for e, c in zip(errors, classes, strict=True) if c["sticking"] and not c["onset"]]
+            sticking += [e["all"] for e, c in zip(errors, classes, strict=True) if c["sticking"] and not c["onset"]]
         seconds = float("nan")
         if timing_envs:
             timed = make("mujoco_warp", task, num_envs=timing_envs, seed=seed, **options)
@@ -135,7 +168,7 @@ def fd_schemes(
                 for _ in range(settle):
                     timed.step(torch.zeros(timing_envs, task.action_dim))
             seconds = _step_seconds(timed, windows)
-        contact = np.asarray(contact_errors)
+        contact = np.asarray([e["all"] for e in contact_errors])
         row = {
             "options": dict(options),
             "fd_scheme": sim.fd_scheme,
@@ -149,6 +182,10 @@ def fd_schemes(
             "contact_states": int(contact.size),
             "contact_error_median": float(np.median(contact)) if contact.size else float("nan"),
             "contact_within_5pct": float(np.mean(contact <= 0.05)) if contact.size else float("nan"),
+            "contact_error_median_by_kind": {
+                kind: float(np.median([e[kind] for e in contact_errors])) if contact.size else float("nan")
+                for kind in KINDS
+            },
             "sticking_states": len(sticking),
             "sticking_error_median": float(np.median(sticking)) if sticking else float("nan"),
             "timing_envs": timing_envs,
@@ -158,7 +195,9 @@ def fd_schemes(
         progress(
             f"  {_label(options)}: {row['worlds_per_env']} worlds/env, "
             f"contact-free max {row['contact_free_error_max']:.1e}, "
-            f"in contact median {row['contact_error_median']:.2g} ({row['contact_within_5pct']:.0%} within 5%), "
+            f"in contact median {row['contact_error_median']:.2g} ({row['contact_within_5pct']:.0%} within 5%; "
+            + "/".join(f"{v:.2g}" for v in row["contact_error_median_by_kind"].values())
+            + " by position/velocity/control columns), "
             f"sticking median {row['sticking_error_median']:.2g}, {seconds:.2f} s per step of {timing_envs} envs"
         )
         rows.append(row)
@@ -183,13 +222,15 @@ def markdown(report: dict, command: str) -> str:
         f"Errors: relative Frobenius error of one control step's Jacobian (state and control columns) against "
         f"{report['reference']}. Contact-free: the max over {report['num_envs']} initial states lifted to 2 m. "
         "In contact: states sampled from random rollouts where MuJoCo C finds a contact; the median, the share "
-        "within 5%, and the median over the states whose friction sticks with no contact made or broken. "
+        "within 5%, the median of each column block's own relative error (position, velocity, control columns), "
+        "and the median over the states whose friction sticks with no contact made or broken. "
         f"Cost: one control step with gradients on the ground, best of {report['windows']}.",
         "",
         "| scheme | position step | velocity step | control step | warm start | tolerance | worlds/env "
         "| contact-free max "
-        "| in contact: median | within 5% | friction sticking: median | s per step | env-steps/s with grad |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| in contact: median | within 5% | by column: position / velocity / control "
+        "| friction sticking: median | s per step | env-steps/s with grad |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in report["rows"]:
         tolerance = "model's" if r["fd_tolerance"] is None else f"{r['fd_tolerance']:g}"
@@ -198,6 +239,7 @@ def markdown(report: dict, command: str) -> str:
             f"| {r['fd_warmstart']} "
             f"| {tolerance} | {r['worlds_per_env']} | {r['contact_free_error_max']:.1e} "
             f"| {r['contact_error_median']:.2g} ({r['contact_states']}) | {r['contact_within_5pct']:.0%} "
+            f"| {' / '.join(f'{v:.2g}' for v in r['contact_error_median_by_kind'].values())} "
             f"| {r['sticking_error_median']:.2g} ({r['sticking_states']}) "
             f"| {r['seconds_per_step_with_grad']:.2f} ({r['timing_envs']} envs) "
             f"| {r['env_steps_per_s_with_grad']:.1f} |"

@@ -72,9 +72,19 @@ def test_fd_schemes_measures_forward_differences_against_the_float64_reference(t
         {"fd_scheme": "forward", "fd_eps_state": 2e-3, "fd_warmstart": "nominal", "fd_tolerance": 0.0},
     )
     report = fd_schemes(
-        "ant", num_envs=2, contact_states=2, timing_envs=0, settle=10, grid=grid, progress=lambda _: None
+        "ant",
+        num_envs=2,
+        contact_states=2,
+        timing_envs=0,
+        settle=10,
+        grid=grid,
+        control_factors=(0.1,),
+        progress=lambda _: None,
     )
-    first, second = report["rows"]
+    first, second, control = report["rows"]
+    # the control-step row: the adapter's default settings, its control step scaled
+    assert control["fd_eps_control"] == pytest.approx(0.1) and control["fd_eps_state"] == 2.5e-4
+    assert set(first["contact_error_median_by_kind"]) == {"position", "velocity", "control"}
     assert first["worlds_per_env"] == 1 + 14 * 2 + 8
     assert first["contact_free_error_max"] < 1e-3 and second["contact_free_error_max"] < 1e-3
     assert first["contact_states"] == 2 and 0.0 <= first["contact_error_median"] < float("inf")
