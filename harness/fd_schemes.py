@@ -62,9 +62,7 @@ KINDS = ("position", "velocity", "control")
 def control_rows(task, factors=CONTROL_FACTORS) -> tuple[dict, ...]:
     """The adapter's default settings for ``task`` with the control step scaled by each factor."""
     default = fd_settings(task, {})
-    return tuple(
-        {"fd_scheme": default["fd_scheme"], "fd_eps_control": default["fd_eps_control"] * f} for f in factors
-    )
+    return tuple({"fd_scheme": default["fd_scheme"], "fd_eps_control": default["fd_eps_control"] * f} for f in factors)
 
 
 def _references(sim, engine: torch.Tensor, control: torch.Tensor, model) -> list[np.ndarray]:
