@@ -963,6 +963,7 @@ def check_summary(check: CheckRecord) -> str:
         return (
             f"Jacobians at {a.get('states')} states in contact: median rel. error {_fmt(a.get('median_rel_error'))}, "
             f"{_pct(a.get('within_20pct'))} within 20%; lifted control {_fmt(c.get('median_rel_error'))}"
+            + (f"; median state gain {_fmt(a['median_state_gain'])}" if "median_state_gain" in a else "")
         )
     if check.kind == "grad-paths":
         s = r.get("summary", {})

@@ -35,6 +35,14 @@ whether a joint limit is active, and whether friction sticks or slides
 (:func:`backends.mujoco_warp.reference.classify_step`). A state counts as agreeing at 5% (or 20%)
 relative error.
 
+Each state also records how strongly the step amplifies a state perturbation, the quantity a
+window's gradient multiplies ``h`` times: the spectral norm of the state Jacobian (the gain), and of
+its velocity-from-position block (a contact's stiffness shows there: a penetration's change becomes
+a velocity change within one step) and velocity-from-velocity block, all over the position columns
+both engines share (root rotation excluded). For MuJoCo-Warp the reference's gains are recorded too,
+so a gain larger than Newton's is told apart as MuJoCo's physics (the reference has it) or its
+differences (only the adapter has it).
+
 A reference needs the tape to replay what its forward did: the tape's Jacobian takes one backward
 pass per output coordinate through the same step, which the contract requires to give the same
 gradient every time (``tests/test_contract.py``).
@@ -57,6 +65,8 @@ NEWTON_EPS = (1e-2, 3e-3, 1e-3, 3e-4, 1e-4)
 #: two neighbouring step sizes whose differences agree this closely bound a plateau
 PLATEAU = 0.05
 THRESHOLDS = (0.05, 0.2)
+#: the per-state gains (:func:`gains`) the summaries take medians of
+GAINS = ("state_gain", "velocity_from_position_gain", "velocity_from_velocity_gain")
 
 
 def train_policy(task, epochs: int, seed: int, device: str = "cpu"):
@@ -148,9 +158,25 @@ def _batches(n: int, *tensors: torch.Tensor):
         )
 
 
+def gains(state_jac: np.ndarray, nq: int, position_cols: list[int], velocity_cols: list[int]) -> dict:
+    """Spectral norms of a step's state Jacobian (rows: next ``[q, qd]``; ``nq`` rows of positions)
+    over the given position and velocity columns, and of its two velocity-row blocks."""
+    cols = position_cols + velocity_cols
+    return {
+        "state_gain": float(np.linalg.norm(state_jac[:, cols], 2)),
+        "velocity_from_position_gain": float(np.linalg.norm(state_jac[nq:, position_cols], 2)),
+        "velocity_from_velocity_gain": float(np.linalg.norm(state_jac[nq:, velocity_cols], 2)),
+    }
+
+
 def _mujoco_warp_rows(sim, model, q, qd, actions, progress) -> list[dict]:
     from backends.mujoco_warp.reference import float64_step_jacobians
 
+    layout = sim.layout
+    nv = layout.nv
+    # tangent columns: positions then velocities; the root's rotation (tangent 3:6) left out, as Newton's
+    position_cols = [j for j in range(nv) if not (layout.floating_base and 3 <= j < 6)]
+    velocity_cols = list(range(nv, 2 * nv))
     rows = []
     for count, (qb, qdb, ab) in _batches(sim.num_envs, q, qd, actions):
         engine = sim.state_from_generalized(qb, qdb).engine.detach()
@@ -160,7 +186,16 @@ def _mujoco_warp_rows(sim, model, q, qd, actions, progress) -> list[dict]:
             _, ref_state, ref_control = float64_step_jacobians(sim, engine[i], control[i], model=model)
             jac = np.concatenate((jac_state[i].numpy(), jac_control[i].numpy()), axis=1)
             rel, cos = compare(jac, np.concatenate((ref_state, ref_control), axis=1))
-            rows.append({"rel_error": rel, "cosine": cos, **classify_step(sim, model, engine[i], control[i])})
+            reference = gains(ref_state, layout.nq, position_cols, velocity_cols)
+            rows.append(
+                {
+                    "rel_error": rel,
+                    "cosine": cos,
+                    **gains(jac_state[i].numpy().astype(np.float64), layout.nq, position_cols, velocity_cols),
+                    **{f"reference_{k}": v for k, v in reference.items()},
+                    **classify_step(sim, model, engine[i], control[i]),
+                }
+            )
         progress(f"  {len(rows)}/{q.shape[0]} states")
     return rows
 
@@ -185,6 +220,9 @@ def _newton_rows(sim, mjw_sim, model, q, qd, actions, eps_sweep, progress) -> li
         nxt = sim.advance(state, a)
         return torch.cat((nxt.joint_q, nxt.joint_qd), dim=1)
 
+    # the tape's columns: positions (root quaternion left out) then velocities
+    position_cols = [j for j, c in enumerate(cols.tolist()) if c < nq]
+    velocity_cols = [j for j, c in enumerate(cols.tolist()) if c >= nq]
     for count, (qb, qdb, ab) in _batches(n, q, qd, actions):
         x = torch.cat((qb, qdb), dim=1).detach()
         a = ab.detach()
@@ -230,6 +268,7 @@ def _newton_rows(sim, mjw_sim, model, q, qd, actions, eps_sweep, progress) -> li
                     "cosine": cos,
                     "plateau_eps": eps_sweep[plateau] if plateau is not None else None,
                     "rel_error_per_eps": [e for e, _ in per_eps],
+                    **gains(tape[i].numpy(), nq, position_cols, velocity_cols),
                     **classify_step(mjw_sim, model, engine[i], control[i]),
                 }
             )
@@ -250,6 +289,10 @@ def _summary(rows: list[dict]) -> dict:
     }
     for t in THRESHOLDS:
         out[f"within_{round(t * 100)}pct"] = float(np.mean(rel <= t))
+    for key in GAINS:
+        for name in (key, f"reference_{key}"):
+            if name in rows[0]:
+                out[f"median_{name}"] = float(np.median([r[name] for r in rows]))
     return out
 
 
@@ -382,6 +425,20 @@ def table(result: dict) -> str:
     lines.append(row("control: the same states lifted clear of the ground", result["control_lifted"]))
     if result.get("control_no_contact_damping"):
         lines.append(row("control: the same states, contact damping off", result["control_no_contact_damping"]))
+    a = result["all"]
+    if "median_state_gain" in a:
+
+        def gain_line(prefix):
+            return ", ".join(
+                f"{k.replace('_', ' ')} {a[f'median_{prefix}{k}']:.3g}" for k in GAINS if f"median_{prefix}{k}" in a
+            )
+
+        lines += [
+            "",
+            f"Median spectral norms in contact (the step's amplification of a state perturbation): {gain_line('')}.",
+        ]
+        if "median_reference_state_gain" in a:
+            lines.append(f"The reference's at the same states: {gain_line('reference_')}.")
     if "plateau_fraction" in result:
         per_eps = ", ".join(f"{k}: {v:.3g}" for k, v in result["median_rel_error_per_eps"].items())
         lines += [

@@ -10,7 +10,7 @@ pytest.importorskip("newton")
 pytest.importorskip("mujoco_warp")
 
 from harness.cli import main as cli  # noqa: E402
-from harness.contact_jacobians import compare, contact_jacobians  # noqa: E402
+from harness.contact_jacobians import compare, contact_jacobians, gains  # noqa: E402
 
 
 @pytest.mark.parametrize("backend", ["mujoco_warp", "newton"])
@@ -34,6 +34,11 @@ def test_the_lifted_control_agrees_and_every_sampled_state_is_in_contact(backend
     assert result["control_lifted"]["median_rel_error"] < 1e-2  # smooth off the ground: the comparison is exact
     for row in result["rows"]:
         assert -1.0 - 1e-9 <= row["cosine"] <= 1.0 + 1e-9 and row["rel_error"] >= 0.0
+        assert row["state_gain"] >= row["velocity_from_position_gain"] > 0.0
+    if backend == "mujoco_warp":
+        # off the ground the adapter's differences are exact, so its gains are the reference's
+        lifted = result["control_lifted"]
+        assert lifted["median_state_gain"] == pytest.approx(lifted["median_reference_state_gain"], rel=1e-2)
 
 
 def test_newton_agrees_with_its_own_differences_in_contact_wherever_they_converge():
@@ -56,6 +61,17 @@ def test_without_contact_damping_newtons_go2_tape_agrees_in_contact():
         "go2", "newton", states=2, num_envs=2, policy_epochs=0, eps_sweep=(1e-3, 3e-4, 1e-4), progress=lambda line: None
     )
     assert result["control_no_contact_damping"]["median_rel_error"] < 2e-2, result["control_no_contact_damping"]
+
+
+def test_gains_are_the_spectral_norms_of_the_chosen_blocks():
+    import numpy as np
+
+    # rows: next q (2), next qd (2); columns: q0, q1 (left out), qd0, qd1
+    jac = np.array([[1.0, 9.0, 0.0, 0.0], [0.0, 9.0, 1.0, 0.0], [50.0, 9.0, 2.0, 0.0], [0.0, 9.0, 0.0, 3.0]])
+    g = gains(jac, nq=2, position_cols=[0], velocity_cols=[2, 3])
+    assert g["velocity_from_position_gain"] == pytest.approx(50.0)
+    assert g["velocity_from_velocity_gain"] == pytest.approx(np.linalg.norm([[2.0, 0.0], [0.0, 3.0]], 2))
+    assert g["state_gain"] == pytest.approx(np.linalg.norm(jac[:, [0, 2, 3]], 2))
 
 
 def test_compare_is_relative_and_scale_free():
