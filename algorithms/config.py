@@ -19,7 +19,10 @@ from typing import Literal, get_args, get_type_hints
 
 _REMOVED_FIELDS = {"extra"}  # in config.json files of older runs; never read
 
-ALGORITHMS = ("shac", "shac-tdfixed", "shac-tdadpt", "sapo", "sapo-tdfixed", "sapo-tdadpt")
+#: the six algorithms, declared once: a family (SHAC, SAPO) and its actor return (h-step, TD-lambda
+#: with a fixed lambda, TD-lambda with an adaptive one)
+AlgoName = Literal["shac", "shac-tdfixed", "shac-tdadpt", "sapo", "sapo-tdfixed", "sapo-tdadpt"]
+ALGORITHMS: tuple[str, ...] = get_args(AlgoName)
 
 
 def _doc(default, help: str):
@@ -29,9 +32,7 @@ def _doc(default, help: str):
 
 @dataclass(frozen=True)
 class AlgoConfig:
-    algo: Literal["shac", "shac-tdfixed", "shac-tdadpt", "sapo", "sapo-tdfixed", "sapo-tdadpt"] = _doc(
-        "shac", "algorithm preset these settings started from"
-    )
+    algo: AlgoName = _doc("shac", "algorithm preset these settings started from")
     # -- rollout / returns -------------------------------------------------------------
     num_envs: int = _doc(64, "N: parallel environments per epoch")
     horizon: int = _doc(32, "h: control steps per window; the graph is cut at every window start")
@@ -205,17 +206,17 @@ def _sapo(**changes) -> AlgoConfig:
     return base.replace(**changes)
 
 
-PRESETS = {
-    "shac": lambda: _shac(),
-    "shac-tdfixed": lambda: _shac(algo="shac-tdfixed", actor_return="td_lambda"),
-    "shac-tdadpt": lambda: _shac(algo="shac-tdadpt", actor_return="td_lambda", adaptive_lambda=True),
-    "sapo": lambda: _sapo(),
-    "sapo-tdfixed": lambda: _sapo(algo="sapo-tdfixed", actor_return="td_lambda"),
-    "sapo-tdadpt": lambda: _sapo(algo="sapo-tdadpt", actor_return="td_lambda", adaptive_lambda=True),
+#: the actor return of each variant suffix (none: SHAC's and SAPO's own h-step return, eq. 10)
+_VARIANTS = {
+    "": {},
+    "tdfixed": {"actor_return": "td_lambda"},
+    "tdadpt": {"actor_return": "td_lambda", "adaptive_lambda": True},
 }
 
 
 def preset(name: str) -> AlgoConfig:
-    if name not in PRESETS:
-        raise KeyError(f"unknown algorithm {name!r}; choose from: {', '.join(PRESETS)}")
-    return PRESETS[name]()
+    """The settings of algorithm ``name`` (one of :data:`ALGORITHMS`)."""
+    if name not in ALGORITHMS:
+        raise KeyError(f"unknown algorithm {name!r}; choose from: {', '.join(ALGORITHMS)}")
+    family, _, variant = name.partition("-")
+    return (_shac if family == "shac" else _sapo)(algo=name, **_VARIANTS[variant])

@@ -23,6 +23,8 @@ import sys
 import types
 import typing
 
+from algorithms.config import ALGORITHMS
+
 EXIT_BAD_INPUT = 2
 
 
@@ -114,7 +116,7 @@ FLAGS: dict[str, dict] = {
     "preset": {"help": "the task's physics preset (see `list`; default: the task's own default)"},
     "episode_seeds": {"type": _positive_int, "default": 5, "help": "seeds of the random-policy episodes"},
     "task": {"help": "task name (see `list`)"},
-    "algo": {"help": "one of: shac, shac-tdfixed, shac-tdadpt, sapo, sapo-tdfixed, sapo-tdadpt"},
+    "algo": {"help": "one of: " + ", ".join(ALGORITHMS)},
     "algos": {"nargs": "+", "help": "algorithm presets to train, e.g. shac shac-tdadpt"},
     "num_envs": {"type": _positive_int, "help": "parallel environments N (eval: per seed, default twice the run's)"},
     "horizon": {"type": _positive_int, "help": "control steps per window h (the graph is cut after each)"},
@@ -878,14 +880,13 @@ def cmd_grad_growth(args) -> int:
 
 
 def cmd_grad_paths(args) -> int:
-    from algorithms.config import PRESETS
     from harness.grad_paths import grad_paths, table
 
     _validate_names(args.backend, args.task)
     _check_device(args.device)
     _check_preset(args.task, args.preset)
-    if args.algo not in PRESETS:
-        raise BadInput(f"unknown algorithm {args.algo!r}; choose from: {', '.join(PRESETS)}")
+    if args.algo not in ALGORITHMS:
+        raise BadInput(f"unknown algorithm {args.algo!r}; choose from: {', '.join(ALGORITHMS)}")
     if args.out:
         _check_output_file(args.out)
     print(f"grad-paths {args.algo} on {args.backend}/{args.task}: {args.epochs} epochs, four rollouts of each window")

@@ -11,7 +11,7 @@ import torch
 pytest.importorskip("newton")
 
 from algorithms.actor_critic import FirstOrderActorCritic  # noqa: E402
-from algorithms.config import PRESETS, preset  # noqa: E402
+from algorithms.config import ALGORITHMS, preset  # noqa: E402
 from algorithms.grad_variance import gradient_statistics, gradient_variance  # noqa: E402
 from algorithms.returns import actor_loss_from_returns, critic_targets, segment_starts  # noqa: E402
 from backends import make  # noqa: E402
@@ -315,7 +315,7 @@ def test_checkpoint_refuses_non_finite_weights(tmp_path):
     assert not (tmp_path / "ckpt.pt").exists()
 
 
-@pytest.mark.parametrize("name", sorted(PRESETS))
+@pytest.mark.parametrize("name", sorted(ALGORITHMS))
 def test_every_algorithm_runs_an_epoch(env, name):
     env.reset()
     algo = _algo(name)
