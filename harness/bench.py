@@ -12,9 +12,10 @@
   AlgoConfig field under ``[train.hyperparameters]``; ``[train.per_task.TASK]`` overrides
   ``epochs``, ``num_envs``, ``horizons``, ``seeds``, ``preset`` or hyperparameters for one task, and
   ``[train.eval]`` the evaluation protocol for the block (``seeds = 0``: no evaluation);
-* ``[[check]]``: ``kind`` (gradcheck, throughput, crosscheck, parity, contact-jacobians, grad-paths), ``backends``,
-  ``tasks`` and the verb's extra ``args`` (a list of command-line words), optionally
-  ``[check.per_task.TASK]`` with ``args``;
+* ``[[check]]``: ``kind`` (gradcheck, throughput, crosscheck, parity, contact-jacobians, grad-paths, and
+  the performance kinds scaling, fd-schemes, solver-probe and peer), ``backends`` (for ``peer``: the
+  peer simulators, ``rewarped``), ``tasks`` and the verb's extra ``args`` (a list of command-line
+  words), optionally ``[check.per_task.TASK]`` with ``args``;
 * ``[[sim_to_sim]]``: runs of the train grid (``task``, ``train_backend``, ``algos``, ``seeds``,
   ``horizon``, ``preset``) evaluated on ``train_backend`` and ``eval_backend`` with one protocol
   (``eval_seeds``, ``num_envs``, ``max_steps``);
@@ -57,10 +58,32 @@ from harness.claims import Claim
 from harness.results import RunError, RunStopped
 
 PROFILES_DIR = Path(__file__).resolve().parent / "profiles"
-CHECK_KINDS = ("gradcheck", "throughput", "crosscheck", "parity", "contact-jacobians", "grad-paths")
+CHECK_KINDS = (
+    "gradcheck",
+    "throughput",
+    "crosscheck",
+    "parity",
+    "contact-jacobians",
+    "grad-paths",
+    "scaling",
+    "fd-schemes",
+    "solver-probe",
+    "peer",
+)
 MULTI_BACKEND_KINDS = ("crosscheck", "parity")  # one job over all of a block's backends
 # checks whose result depends on how an adapter computes gradients (their address includes it)
-GRADIENT_CHECK_KINDS = ("gradcheck", "throughput", "crosscheck", "contact-jacobians", "grad-paths")
+GRADIENT_CHECK_KINDS = (
+    "gradcheck",
+    "throughput",
+    "crosscheck",
+    "contact-jacobians",
+    "grad-paths",
+    "scaling",
+    "fd-schemes",
+)
+#: kinds measured on one backend only (the verb's own), and the peer simulators ``peer`` measures
+ONLY_BACKEND = {"fd-schemes": "mujoco_warp", "solver-probe": "newton"}
+PEERS = ("rewarped",)
 
 # Seconds per env step of a training epoch (simulation with gradients and the updates) on this 2-core
 # CPU, from the runs in results/ (docs/cluster.md). Only the first ETA uses them: finished jobs correct them.
@@ -87,6 +110,10 @@ _CHECK_SECONDS = {
     "parity": 120.0,
     "contact-jacobians": 300.0,
     "grad-paths": 120.0,
+    "scaling": 300.0,
+    "fd-schemes": 150.0,
+    "solver-probe": 120.0,
+    "peer": 120.0,
 }
 _STARTUP_S = 12.0  # a job's process start, imports and model build (Warp kernels cached)
 
@@ -393,6 +420,15 @@ def _logged_epochs(path: Path) -> int:
     return last + 1
 
 
+def _check_targets(kind: str, backend_names: list[str], task: str) -> list[tuple[str, list[str]]]:
+    """(label backend, the verb's words naming what it checks) of each job of a check block's task."""
+    if kind in MULTI_BACKEND_KINDS:
+        return [("-".join(backend_names), ["--task", task, "--backends", *backend_names])]
+    if kind in ("fd-schemes", "peer"):  # one simulator each: the words name the task only
+        return [(b, ["--task", task]) for b in backend_names]
+    return [(b, ["--backend", b, "--task", task]) for b in backend_names]
+
+
 def _harness(*words) -> list[str]:
     return [sys.executable, "-m", "harness", *[str(w) for w in words]]
 
@@ -454,20 +490,18 @@ def plan(data: dict, store: Path) -> list[Job]:
             raise RunError(f"{where}: kind must be one of {', '.join(CHECK_KINDS)}, got {kind!r}")
         blist = _names(block.get("backends", []), f"{where} backends")
         for b in blist:
-            _known(b, known["backends"], "backend", where)
+            _known(b, PEERS if kind == "peer" else known["backends"], "peer" if kind == "peer" else "backend", where)
+            if kind in ONLY_BACKEND and b != ONLY_BACKEND[kind]:
+                raise RunError(f"{where}: {kind} measures {ONLY_BACKEND[kind]} only, not {b!r}")
         for task in _names(block.get("tasks", []), f"{where} tasks"):
             _known(task, known["tasks"], "task", where)
             args = [str(a) for a in block.get("args", []) + block.get("per_task", {}).get(task, {}).get("args", [])]
-            if kind in MULTI_BACKEND_KINDS:
-                targets = [("-".join(blist), ["--task", task, "--backends", *blist])]
-            else:
-                targets = [(b, ["--backend", b, "--task", task]) for b in blist]
-            for label_backend, words in targets:
+            for label_backend, words in _check_targets(kind, blist, task):
                 differentiates = kind in GRADIENT_CHECK_KINDS
                 gradients = gradient_identity(label_backend.split("-"), task) if differentiates else {}
                 key = _hash([kind, *words, *args, device, physics_identity(task)] + ([gradients] if gradients else []))
                 out = store / "checks" / f"{kind}_{task}_{label_backend}_{key}.json"
-                if kind not in MULTI_BACKEND_KINDS:
+                if kind not in MULTI_BACKEND_KINDS + ("fd-schemes", "solver-probe", "peer"):  # these run on the CPU
                     words = [*words, "--device", device]
                 jobs.append(
                     Job(

@@ -171,6 +171,7 @@ VERB_DEFAULTS: dict[str, dict] = {
     "grad-paths": {"algo": "shac", "num_envs": 16, "horizon": 16, "epochs": 10},
     "solver-probe": {"num_envs": 64, "task": "ant", "max_steps": 1000, "backend": "newton"},
     "fd-schemes": {"num_envs": 8, "windows": 3},
+    "peer": {"windows": 5},
     "scaling": {"horizon": 8, "windows": 3},
 }
 
@@ -445,6 +446,20 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("solver-probe", help="Newton solver/contact settings: forward stability and gradient size")
     _add(p, "solver-probe", "backend", "task", "num_envs", "max_steps", "out")
+
+    p = sub.add_parser(
+        "peer", help="a peer simulator's env-steps/s (Rewarped, in its own environment), written with provenance"
+    )
+    p.add_argument("--peer", default="rewarped", help="the peer simulator (default: %(default)s)")
+    _add(p, "peer", "task", "num_envs", "horizon", "windows", "out", required=("task", "num_envs", "horizon", "out"))
+    p.add_argument("--python", help="the peer environment's interpreter (default: $DIFFSIM_REWARPED_PYTHON)")
+    p.add_argument(
+        "--peer-arg",
+        action="append",
+        default=[],
+        metavar="WORD",
+        help="a further word for the peer's script, e.g. --peer-arg=--nograd-env (repeatable)",
+    )
     return parser
 
 
@@ -1038,6 +1053,24 @@ def cmd_solver_probe(args) -> int:
     return 0
 
 
+def cmd_peer(args) -> int:
+    from harness.peers import PEER_TASKS, PEERS, PeerUnavailable, run_peer
+    from harness.results import provenance, write_json
+
+    if args.peer not in PEERS:
+        raise BadInput(f"unknown peer {args.peer!r}; choose from: {', '.join(PEERS)}")
+    if args.task not in PEER_TASKS[args.peer]:
+        raise BadInput(f"{args.peer} has the tasks {', '.join(PEER_TASKS[args.peer])}, not {args.task!r}")
+    _check_output_file(args.out)
+    words = ["--num-envs", str(args.num_envs), "--horizon", str(args.horizon), "--windows", str(args.windows)]
+    try:
+        result = run_peer(args.peer, args.task, words + list(args.peer_arg), python=args.python)
+    except PeerUnavailable as exc:
+        raise BadInput(str(exc)) from None
+    print(f"wrote {write_json(args.out, {**result, 'provenance': provenance()})}")
+    return 0
+
+
 def cmd_fd_schemes(args) -> int:
     from harness.results import atomic_write_text, provenance, write_json
 
@@ -1046,8 +1079,9 @@ def cmd_fd_schemes(args) -> int:
 
     if task_class(args.task).layout.num_particles:
         raise BadInput("fd-schemes compares schemes on articulated tasks (ant, go2); soft bodies have no C reference")
-    if args.out:
-        _check_output_file(args.out + ".json")
+    prefix = args.out.removesuffix(".json") if args.out else None  # PREFIX or PREFIX.json: both files
+    if prefix:
+        _check_output_file(prefix + ".json")
     from harness.fd_schemes import fd_schemes, markdown
 
     print(f"fd-schemes mujoco_warp/{args.task}: accuracy on {args.num_envs} envs, cost at {args.timing_envs} envs")
@@ -1060,9 +1094,9 @@ def cmd_fd_schemes(args) -> int:
         settle=args.settle,
         contact_states=args.contact_states,
     )
-    if args.out:
-        print(f"wrote {write_json(args.out + '.json', {**report, 'provenance': provenance()})}")
-        print(f"wrote {atomic_write_text(args.out + '.md', markdown(report, _command()))}")
+    if prefix:  # the JSON last: a suite counts the check done when it exists
+        print(f"wrote {atomic_write_text(prefix + '.md', markdown(report, _command()))}")
+        print(f"wrote {write_json(prefix + '.json', {**report, 'provenance': provenance()})}")
     return 0
 
 
@@ -1075,7 +1109,7 @@ def cmd_scaling(args) -> int:
     if sorted(args.envs) != list(args.envs) or len(set(args.envs)) != len(args.envs):
         raise BadInput(f"--envs must be distinct and increasing, got {args.envs}")
     suffix = ("" if args.device == "cpu" else "_cuda") + ("_forward" if args.forward_only else "")
-    out = args.out or f"results/scaling_{args.backend}_{args.task}{suffix}"
+    out = args.out.removesuffix(".json") if args.out else f"results/scaling_{args.backend}_{args.task}{suffix}"
     _check_output_file(out + ".csv")
     print(f"scaling {args.backend}/{args.task}: envs {args.envs}, {args.horizon}-step windows, best of {args.windows}")
     rows = scaling(
@@ -1132,6 +1166,7 @@ VERBS = {
     "parity": cmd_parity,
     "contact-jacobians": cmd_contact_jacobians,
     "solver-probe": cmd_solver_probe,
+    "peer": cmd_peer,
     "bench": cmd_bench,
     "bench-run": cmd_bench_run,
     "landscape": cmd_landscape,

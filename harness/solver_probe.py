@@ -1,8 +1,7 @@
 """``python -m harness solver-probe``: evidence for a task's Newton solver settings, written with provenance.
 
-``--task ant`` (the default) runs the Ant probe of :mod:`backends.newton.solver_probe` (engine code fed
-the task's asset and physics). ``--task go2`` and ``--task soft_jumper`` probe candidate settings
-through the adapter itself, each candidate a physics change plus adapter options (:data:`CANDIDATES`):
+Each task has candidate settings (:data:`CANDIDATES`), each a physics preset of the task, changes to
+its physics and adapter options, probed through the adapter itself:
 
 * forward stability: ``num_envs`` envs x ``steps`` control steps of uniform random actions in
   (-1, 1) (no gradient): the first non-finite step if any, the height range of the body (trunk, or a
@@ -12,6 +11,8 @@ through the adapter itself, each candidate a physics change plus adapter options
 * gradient: along the first ``windows`` windows of 32 random-action steps, the per-env norm of
   d(window reward)/d(first actions) (what ``grad-growth`` measures along a trained policy's
   trajectories), max and median; an exploding adjoint shows up as norms of 1e3 and far above.
+
+On another backend (one solver there) only the standing check of the task's own settings runs.
 """
 
 from __future__ import annotations
@@ -25,19 +26,27 @@ import torch
 
 from harness.results import provenance, write_json
 
-#: (label, physics changes, adapter options) for the Go2 on Newton
+#: (label, physics preset (None: the task's default), physics changes, adapter options) for the Ant on Newton
+ANT_CANDIDATES = [
+    ("featherstone, the bench constants (chosen)", None, {}, {}),
+    ("semi_implicit, the bench constants without armature", "bench_semi_implicit", {}, {}),
+    ("featherstone, contact kd 1e4 (the top of SHAC's range)", None, {"contact_kd": 1.0e4}, {}),
+    ("featherstone, friction slope kf 3e3 (DiffRL's)", "bench_kf3000", {}, {}),
+    ("featherstone, Rewarped's AntDflex", "rewarped", {}, {}),
+]
+#: the same for the Go2
 GO2_CANDIDATES = [
-    ("semi_implicit 16 substeps", {}, {"solver": "semi_implicit"}),
-    ("semi_implicit 64 substeps", {"substeps": 64}, {"solver": "semi_implicit"}),
-    ("featherstone armature 0.01 16 substeps", {"armature": 0.01}, {"solver": "featherstone"}),
-    ("featherstone armature 0.01 32 substeps", {"armature": 0.01, "substeps": 32}, {"solver": "featherstone"}),
-    ("featherstone armature 0.1 16 substeps (chosen)", {}, {"solver": "featherstone"}),
+    ("semi_implicit 16 substeps", None, {}, {"solver": "semi_implicit"}),
+    ("semi_implicit 64 substeps", None, {"substeps": 64}, {"solver": "semi_implicit"}),
+    ("featherstone armature 0.01 16 substeps", None, {"armature": 0.01}, {"solver": "featherstone"}),
+    ("featherstone armature 0.01 32 substeps", None, {"armature": 0.01, "substeps": 32}, {"solver": "featherstone"}),
+    ("featherstone armature 0.1 16 substeps (chosen)", None, {}, {"solver": "featherstone"}),
 ]
 #: the SoftJumper on Newton: the task's settings (semi-implicit, 80 substeps, kf 10)
 SOFT_JUMPER_CANDIDATES = [
-    ("semi_implicit 80 substeps kf 10 (chosen)", {}, {}),
+    ("semi_implicit 80 substeps kf 10 (chosen)", None, {}, {}),
 ]
-CANDIDATES = {"go2": GO2_CANDIDATES, "soft_jumper": SOFT_JUMPER_CANDIDATES}
+CANDIDATES = {"ant": ANT_CANDIDATES, "go2": GO2_CANDIDATES, "soft_jumper": SOFT_JUMPER_CANDIDATES}
 
 
 def run_probe(
@@ -51,19 +60,10 @@ def run_probe(
     if backend != "newton":  # one solver there: only the standing check of the task's own settings
         results = [standing(backend, task, steps=steps, num_envs=num_envs)]
         print(json.dumps(results[0]), flush=True)
-    elif task in CANDIDATES:
-        results = []
-        for label, changes, options in CANDIDATES[task]:
-            result = probe_candidate(task, label, changes, options, num_envs=num_envs, steps=steps)
-            print(json.dumps(result), flush=True)
-            results.append(result)
     else:
-        from backends.newton.solver_probe import probe_all
-        from tasks import make_task
-
-        ant = make_task("ant")
         results = []
-        for result in probe_all(str(ant.asset_path), ant.physics, num_envs=num_envs):
+        for label, preset, changes, options in CANDIDATES[task]:
+            result = probe_candidate(task, label, changes, options, preset=preset, num_envs=num_envs, steps=steps)
             print(json.dumps(result), flush=True)
             results.append(result)
     if out:
@@ -132,19 +132,27 @@ def probe_candidate(
     label: str,
     changes: dict,
     options: dict,
+    preset: str | None = None,
     num_envs: int = 64,
     steps: int = 1000,
     windows: int = 3,
     seed: int = 0,
 ) -> dict:
-    """One candidate setting of ``task_name`` on Newton: forward stability, standing, gradient norms."""
+    """One candidate setting of ``task_name`` on Newton (its physics ``preset`` with ``changes``, the
+    adapter's ``options``): forward stability, standing, gradient norms."""
     from backends import NonFiniteStateError, make
     from tasks import make_task
     from tasks.rollout import rollout_reward
 
-    base = make_task(task_name)
-    task = type(base)(dataclasses.replace(base.physics, **changes))
-    result = {"candidate": label, "physics_changes": changes, "adapter_options": options, "steps": steps}
+    base = make_task(task_name, preset=preset)
+    task = make_task(task_name, dataclasses.replace(base.physics, **changes), preset=preset)
+    result = {
+        "candidate": label,
+        "preset": preset or type(base).default_preset,
+        "physics_changes": changes,
+        "adapter_options": options,
+        "steps": steps,
+    }
     start = time.perf_counter()
 
     # forward stability under random actions

@@ -55,12 +55,31 @@ def test_scaling_writes_csv_json_and_plot_and_skips_what_would_take_too_long(tmp
         (["fd-schemes", "--task", "soft_jumper"], "articulated tasks"),
         (["throughput", "--backend", "newton", "--task", "ant", "--backend-option", "fd_scheme"], "KEY=VALUE"),
         (["gradcheck", "--backend", "newton", "--task", "ant", "--backend-option", "fd_scheme=forward"], "no option"),
+        (
+            ["peer", "--peer", "dflex", "--task", "ant", "--num-envs", "4", "--horizon", "4", "--out", "p.json"],
+            "unknown peer",
+        ),
+        (["peer", "--task", "go2", "--num-envs", "4", "--horizon", "4", "--out", "p.json"], "has the tasks"),
+        (
+            ["peer", "--task", "ant", "--num-envs", "4", "--horizon", "4", "--out", "p.json", "--python", "/nowhere"],
+            "not an executable",
+        ),
     ],
 )
-def test_bad_input_to_the_measuring_verbs_is_one_line(args, needle, capsys):
+def test_bad_input_to_the_measuring_verbs_is_one_line(args, needle, capsys, monkeypatch):
+    monkeypatch.delenv("DIFFSIM_REWARPED_PYTHON", raising=False)
     assert main(args) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and needle in err
+
+
+def test_peer_without_its_interpreter_says_what_to_set(capsys, monkeypatch, tmp_path):
+    monkeypatch.delenv("DIFFSIM_REWARPED_PYTHON", raising=False)
+    args = ["peer", "--task", "ant", "--num-envs", "4", "--horizon", "4", "--out", str(tmp_path / "p.json")]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "DIFFSIM_REWARPED_PYTHON" in err
+    assert not (tmp_path / "p.json").exists()
 
 
 def test_fd_schemes_measures_forward_differences_against_the_float64_reference(tmp_path):
