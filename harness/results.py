@@ -75,6 +75,8 @@ def machine() -> dict:
         "MKL_NUM_THREADS": os.environ.get("MKL_NUM_THREADS"),
         "warp_cpu_kernels": "single-threaded (one Warp CPU kernel runs on one thread)",
         "gpus": gpus,
+        # other work on the machine when the result was made (timings want it near 0 beyond their own job)
+        "load_average_1min": round(os.getloadavg()[0], 2),
     }
 
 
