@@ -39,21 +39,35 @@ from backends.mujoco_warp.adapter import fd_settings
 from backends.mujoco_warp.reference import accurate_model, classify_step, float64_step_jacobians
 from tasks import make_task
 
-#: the adapter options of each measured row (the control step stays at the adapter's default unless given)
+#: the adapter options of each measured row (the control step stays at the adapter's default)
 GRID = (
-    {"fd_scheme": "central", "fd_eps_state": 1e-2},
-    {"fd_scheme": "central", "fd_eps_state": 2e-3},
-    {"fd_scheme": "central", "fd_eps_state": 5e-4},
-    {"fd_scheme": "forward", "fd_eps_state": 2e-3},
-    {"fd_scheme": "forward", "fd_eps_state": 2e-3, "fd_warmstart": "nominal", "fd_tolerance": 0.0},
-    {"fd_scheme": "forward", "fd_eps_state": 1e-3},
-    {"fd_scheme": "forward", "fd_eps_state": 5e-4},
-    {"fd_scheme": "forward", "fd_eps_state": 5e-4, "fd_warmstart": "nominal", "fd_tolerance": 0.0},
+    {"fd_scheme": "central", "fd_eps_state": 1e-2, "fd_eps_velocity": 1e-2},
+    {"fd_scheme": "central", "fd_eps_state": 2e-3, "fd_eps_velocity": 2e-3},
+    {"fd_scheme": "central", "fd_eps_state": 5e-4, "fd_eps_velocity": 5e-4},
+    {"fd_scheme": "central", "fd_eps_state": 5e-4, "fd_eps_velocity": 1e-2},
+    {"fd_scheme": "forward", "fd_eps_state": 2e-3, "fd_eps_velocity": 2e-3},
+    {
+        "fd_scheme": "forward",
+        "fd_eps_state": 2e-3,
+        "fd_eps_velocity": 2e-3,
+        "fd_warmstart": "nominal",
+        "fd_tolerance": 0.0,
+    },
+    {"fd_scheme": "forward", "fd_eps_state": 1e-3, "fd_eps_velocity": 1e-3},
+    {"fd_scheme": "forward", "fd_eps_state": 5e-4, "fd_eps_velocity": 5e-4},
     {"fd_scheme": "forward", "fd_eps_state": 5e-4, "fd_eps_velocity": 2e-3},
     {"fd_scheme": "forward", "fd_eps_state": 2e-3, "fd_eps_velocity": 5e-4},
-    {"fd_scheme": "forward", "fd_eps_state": 2.5e-4},
+    {"fd_scheme": "forward", "fd_eps_state": 2.5e-4, "fd_eps_velocity": 2.5e-4},
     {"fd_scheme": "forward", "fd_eps_state": 2.5e-4, "fd_eps_velocity": 2e-3},
     {"fd_scheme": "forward", "fd_eps_state": 2.5e-4, "fd_eps_velocity": 1e-2},
+    {
+        "fd_scheme": "forward",
+        "fd_eps_state": 2.5e-4,
+        "fd_eps_velocity": 1e-2,
+        "fd_warmstart": "nominal",
+        "fd_tolerance": 0.0,
+    },
+    {"fd_scheme": "forward", "fd_eps_state": 2.5e-4, "fd_eps_velocity": 3e-2},
 )
 #: the control step's rows: the adapter's default settings with the control step times each factor
 CONTROL_FACTORS = (0.01, 0.1, 10.0)

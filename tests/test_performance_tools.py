@@ -87,8 +87,14 @@ def test_fd_schemes_measures_forward_differences_against_the_float64_reference(t
     from harness.fd_schemes import fd_schemes, markdown
 
     grid = (
-        {"fd_scheme": "forward", "fd_eps_state": 2e-3},
-        {"fd_scheme": "forward", "fd_eps_state": 2e-3, "fd_warmstart": "nominal", "fd_tolerance": 0.0},
+        {"fd_scheme": "forward", "fd_eps_state": 2e-3, "fd_eps_velocity": 2e-3},
+        {
+            "fd_scheme": "forward",
+            "fd_eps_state": 2e-3,
+            "fd_eps_velocity": 2e-3,
+            "fd_warmstart": "nominal",
+            "fd_tolerance": 0.0,
+        },
     )
     report = fd_schemes(
         "ant",

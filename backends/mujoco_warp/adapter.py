@@ -56,51 +56,20 @@ Gradients (:meth:`MujocoWarpSim.fd_jacobians`, :class:`_MujocoWarpStep`):
   ``delta = 2 Im(conj(q^) * dq) / |q|`` (the radial part of ``dq`` gives ``delta = 0``). Hence
   ``dL/dq = (2 / |q|) E(conj(q^))^T dL/d delta`` where ``E(p) r = Im(p * r)``; the gradient
   along ``q`` itself is zero.
-* Steps: ``fd_eps_state`` = 1e-2 (metres, radians, m/s, rad/s) and ``fd_eps_control`` = 1 N m
-  (torques reach 200 N m), chosen by measurement: per-step Jacobians on contact-free states
-  (8 Ants in the air) against MuJoCo's own float64 C finite differences (``mjd_transitionFD``,
-  chained over the 16 substeps, gear-1 motors standing in for ``qfrc_applied``), relative
-  Frobenius error, max over envs:
-
-  ====================  =======  =======  =======  =======  =======  =======  =======
-  fd_eps_state          3e-2     2e-2     1e-2     5e-3     3e-3     1e-3     1e-4
-  state Jacobian        1.5e-4   7.2e-5   5.9e-5   9.3e-5   1.5e-4   5.4e-4   5.2e-3
-  fd_eps_control (N m)  30       10       3        1        0.3      0.1      0.01
-  torque Jacobian       4.8e-6   2.5e-6   9.9e-6   4.0e-5   9.1e-5   3.0e-4   2.4e-3
-  ====================  =======  =======  =======  =======  =======  =======  =======
-
-  Smaller steps lose digits to float32 round-off, larger state steps to curvature. The torque
-  column keeps improving up to 10 N m because one control step is nearly affine in the torque;
-  1 N m is taken instead because it moves the joint velocities by ~0.015 rad/s, the same size as
-  the state step, so both probe the same neighbourhood when contacts make the step rough.
-  Position targets (the Go2, 1 + 2 (2 nv + nu) = 97 worlds per env): ``fd_eps_control`` = 1e-2 rad
-  by default, measured the same way against float64 MuJoCo C central differences (step 1e-6) of the
-  same control step with the PD law per substep (3 Go2s in the air; ``tests/test_go2.py`` keeps the
-  check at < 1e-3): steps (state, target) of (1e-2, 1e-2) give 1.8e-5 and 1.8e-5; (3e-3, 3e-3) 5.4e-5
-  and 4.8e-5; (1e-3, 1e-3) 1.5e-4 and 1.4e-4; a target step of 3e-2 or 1e-1 gives 5.0e-6 or 1.6e-6
-  (again nearly affine), but 1e-2 rad (0.3 N m through kp = 30) keeps both steps in one neighbourhood.
-* Schemes (option ``fd_scheme``): ``central`` as above, or ``forward`` (the default), one-sided
-  differences from the nominal world, ``(f(x + eps e_i) - f(x)) / eps``: 1 + P worlds per env instead
-  of 1 + 2P (37 instead of 73 on the Ant, 49 instead of 97 on the Go2), exact in the limit like central
-  differences but with a first-order truncation error.
-* Steps in contact. The table above is contact-free. In contact, a control step is smooth only between
-  the contacts' switches (a contact's constraint activating, friction reaching its cone), and a state
-  step straddles them the more often the larger it is; what matters is the position step
-  (``fd_eps_state``; ``fd_eps_velocity`` sets the velocities' separately). ``python -m harness
-  fd-schemes --task ant|go2`` measures every setting against the float64 MuJoCo C reference
-  (:mod:`backends.mujoco_warp.reference`) at states sampled in contact and off the ground, with its
-  cost (results/mujoco_warp_fd_schemes_*.md): forward differences with a 2e-3 step have a median
-  in-contact error of 0.12 (Ant) and 0.54 (Go2), with 5e-4 0.0009 and 0.0025, with 2.5e-4 0.001 and
-  0.0017 (81% and 100% of states within 5%), at the same cost; off the ground the smaller step costs
-  round-off (max 2.9e-3 and 5.5e-4 against 9e-4 and 1.4e-4). The defaults are therefore 2.5e-4
-  (forward) and 5e-4 (central; 1e-2 above is its contact-free optimum, 0.35 / 0.44 in contact). The
-  perturbed worlds' solver settings make no measurable difference (``fd_warmstart=nominal`` carries
-  the nominal world's warm start into its perturbed worlds at every substep; ``fd_tolerance=0`` runs
-  their solves to the full iteration count; both change errors in the fourth digit and cost up to
-  40% more), so they stay off.
-* Cost: 73 worlds per env for a step with grad (central differences), 1 without; on the 2-core CPU, a control step
-  takes ~0.1 s without grad for 2 to 64 envs (kernel-launch bound) and, forward + backward,
-  ~0.15 s for 2 envs and 2 to 2.7 s for 64 envs (4672 worlds). ``fd_chunk_envs`` (default: all envs)
+* Schemes (option ``fd_scheme``): ``forward`` (the default), one-sided differences from the nominal
+  world, ``(f(x + eps e_i) - f(x)) / eps``, 1 + P worlds per env (37 on the Ant, 49 on the Go2), or
+  ``central`` as above, 1 + 2P (73, 97).
+* Steps, one per kind of coordinate: ``fd_eps_state`` (positions, metres and radians),
+  ``fd_eps_velocity`` (velocities) and ``fd_eps_control`` (torques in N m, or PD targets in rad).
+  Their defaults are the most accurate in contact, where training runs, against float64 MuJoCo C at
+  the same cost (``harness fd-schemes``, run by the perf profile; docs/mujoco-warp.md): a position step
+  straddles a contact's switches the more often the larger it is, so positions take a small one
+  (:data:`FD_EPS_STATE`), while velocities and controls, on which a control step is nearly affine,
+  take larger ones (:data:`FD_EPS_VELOCITY`, 1 N m or 1e-2 rad) that lose fewer digits to float32.
+  The perturbed worlds' solver settings (``fd_warmstart``: the nominal world's warm start carried
+  into them; ``fd_tolerance``: their solver tolerance) change no error measurably and cost more, so
+  they stay off.
+* Cost: 1 + P worlds per env for a step with grad, 1 without; ``fd_chunk_envs`` (default: all envs)
   bounds how many envs share one batch, i.e. memory, without changing the result.
 
 Soft bodies (``TET_ACTIVATION``, the SoftJumper; :mod:`backends.mujoco_warp.soft`): the tet mesh as a
@@ -109,17 +78,6 @@ Soft bodies (``TET_ACTIVATION``, the SoftJumper; :mod:`backends.mujoco_warp.soft
 substep. Finite differences perturb all ``2 * 3P + T`` coordinates additively (3109 worlds per env
 for the SoftJumper), env by env, in chunks of ``fd_chunk_worlds``; state step 1e-3 m, activation
 step 1e-2.
-
-Contacts make a control step non-smooth (measured with MuJoCo's default solref/solimp, before the
-penalty conversion; in-contact gradients are re-validated separately). With MuJoCo's soft contacts,
-the constraint's damping term acts from the first substep in which a geom penetrates, so the next
-state jumps whenever the touchdown moves to another substep: along the approach direction about
-every ``v * sim_dt`` (~1 mm at 1 m/s), with jumps of ~0.3 rad/s in joint velocity in our scans. A
-step of 1e-2 averages over several of these jumps (a smoothed, secant gradient); the local
-derivative between jumps, which finite differences of a whole rollout with tiny action steps see,
-ignores them. The two disagree by ~30% on ``gradcheck --with-contact`` (reported, not asserted), and
-no step size fixes that: steps of 1e-3 / 0.1 N m and 1e-4 / 0.01 N m give max errors of 0.27 and
-0.86.
 """
 
 from __future__ import annotations
@@ -150,9 +108,10 @@ from simcore import (
 )
 
 FD_SCHEMES = ("central", "forward")  # finite-difference schemes of the ``fd_scheme`` option
-#: each scheme's default state step, positions and velocities alike (articulated tasks; module docstring,
-#: "Steps in contact")
+#: each scheme's default position step (articulated tasks; module docstring, "Steps")
 FD_EPS_STATE = {"central": 5e-4, "forward": 2.5e-4}
+#: the default velocity step of both schemes
+FD_EPS_VELOCITY = 1e-2
 
 _ROOT_Q = 7  # free joint: position (3) + quaternion w, x, y, z (4)
 _ROOT_V = 6  # free joint: linear velocity (3, world frame) + angular velocity (3, body frame)
@@ -223,7 +182,7 @@ def _urdf_without_visuals(path) -> str:
 def fd_settings(task, options: dict) -> dict:
     """The finite-difference settings of ``task`` under adapter ``options``: each option's value, or
     its default (module docstring), validated. Articulated tasks: ``fd_scheme`` (forward),
-    ``fd_eps_state`` (positions), ``fd_eps_velocity`` (default: the positions' step),
+    ``fd_eps_state`` (positions), ``fd_eps_velocity`` (velocities),
     ``fd_eps_control``, ``fd_warmstart`` and ``fd_tolerance`` (the perturbed worlds' solves); soft
     bodies: central differences, ``fd_eps_state`` and ``fd_eps_control``."""
     soft = task.control_kind == ControlKind.TET_ACTIVATION
@@ -243,7 +202,7 @@ def fd_settings(task, options: dict) -> dict:
         settings = {
             "fd_scheme": scheme,
             "fd_eps_state": eps_state,
-            "fd_eps_velocity": float(options.get("fd_eps_velocity", eps_state)),
+            "fd_eps_velocity": float(options.get("fd_eps_velocity", FD_EPS_VELOCITY)),
             # 1 N m of torque, or 1e-2 rad of PD target (x kp = 0.3 N m on the Go2); module docstring
             "fd_eps_control": float(options.get("fd_eps_control", 1e-2 if position_control else 1.0)),
             "fd_warmstart": str(options.get("fd_warmstart", "zero")),
