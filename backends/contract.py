@@ -106,7 +106,7 @@ class BatchedSim(ABC):
 
     #: registry name of the adapter, set by subclasses
     name: str = ""
-    #: the tasks the contract test suite (tests/test_contract.py) runs this adapter on
+    #: the tasks the contract test suite (harness.contract_suite, run by tests/test_contract.py) runs this adapter on
     contract_tasks: tuple[str, ...] = ("ant",)
     #: the keyword options the adapter reads; any other is refused at build time (a misspelt option
     #: would otherwise be silently ignored). ``None``: the adapter does not declare them (unchecked).

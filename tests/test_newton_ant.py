@@ -216,9 +216,9 @@ def test_captured_frames_replay_bit_identical_states_and_gradients(task_name, nu
     eager = make("newton", task, num_envs=num_envs, seed=0, max_graph_steps=steps, graph_capture=0)
     assert captured.graph_capture and not eager.graph_capture
     a, b = run(captured), run(eager)
-    assert all(f.forward_graph is not None and f.backward_graph is not None for f in captured._frames)
-    assert captured._scratch.forward_graph is not None
-    assert all(f.forward_graph is None for f in eager._frames)
+    assert all(f.forward_graph is not None and f.backward_graph is not None for f in captured.stepper.frames)
+    assert captured.stepper.scratch.forward_graph is not None
+    assert all(f.forward_graph is None for f in eager.stepper.frames)
     assert len(a) == len(b) and all(x.abs().max() > 0 for x in a)
     for x, y in zip(a, b, strict=True):
         assert torch.equal(x, y)

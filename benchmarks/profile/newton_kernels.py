@@ -3,7 +3,7 @@
     OMP_NUM_THREADS=1 python benchmarks/profile/newton_kernels.py --task ant [--preset bench] \
         [--num-envs 64] [--horizon 32] [--out results/.../profile.json]
 
-Runs the adapter's bare rollout (``backends.newton.adapter.bare_tape_rollout``: the same model,
+Runs the adapter's bare rollout (``backends.newton.bare.bare_tape_rollout``: the same model,
 solver, contacts and substeps, one tape over the window, its backward) once to warm up and once
 timed, with every ``wp.launch`` (forward and adjoint) timed on its own. A CPU kernel runs to
 completion inside its launch, so a launch's wall time is the kernel's plus Warp's Python launch
@@ -33,7 +33,7 @@ def main() -> None:
     import warp as wp
     import warp._src.context as context
 
-    from backends.newton.adapter import bare_tape_rollout
+    from backends.newton.bare import bare_tape_rollout
     from harness.envs import make_sim
     from harness.results import provenance, write_json
     from tasks import make_task
