@@ -30,7 +30,7 @@ import tempfile
 from pathlib import Path
 
 from algorithms.config import AlgoConfig
-from harness import bench
+from harness import bench, runner
 from harness.results import provenance, write_json
 from harness.train import train
 
@@ -118,7 +118,7 @@ def main(argv=None) -> int:
                 config["physics_record"] = identity["physics"]
                 config["adopted"] = {"from": old_dir.name, "evidence": why, "by": provenance(" ".join(sys.argv))}
                 write_json(job.run_dir / "config.json", config)
-                bench._write_job_file(job)
+                runner._write_job_file(job)
                 if not job.is_done():
                     raise SystemExit(f"{job.run_dir}: adopted but not done; remove it")
         diffs = f"; {_fmt(entry['rel_diff'])}" if "rel_diff" in entry else ""

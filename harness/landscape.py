@@ -27,9 +27,7 @@ included (its noise is the second, independent sample of the same seeded stream)
 from __future__ import annotations
 
 import math
-import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -286,11 +284,9 @@ def plot_landscape(result: dict, path) -> Path:
     x is the first direction's coefficient (``alphas``), y the second's (``betas``); the cross marks
     the trained policy. Non-finite points are left blank. Written atomically (temporary file, rename).
     """
-    import matplotlib
+    from harness.report.plots import pyplot, save_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import seaborn as sns
+    plt, sns = pyplot()
 
     alphas, betas = np.asarray(result["alphas"]), np.asarray(result["betas"])
     labels = {
@@ -316,20 +312,7 @@ def plot_landscape(result: dict, path) -> Path:
         f"{result['num_envs']} envs, h={result['horizon']}"
     )
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".png")
-    os.close(fd)
-    try:
-        fig.savefig(tmp, dpi=100)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    finally:
-        plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def write_landscape(run_dir, result: dict) -> Path:

@@ -301,9 +301,9 @@ def table(result: dict) -> str:
 
 def plot(result: dict, path: Path) -> Path:
     """Settle paths, open-loop divergence and first-episode lengths, the backends side by side."""
-    from harness.bench_report import _pyplot, _save_figure
+    from harness.report.plots import pyplot, save_figure
 
-    plt, _ = _pyplot()
+    plt, _ = pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(15, 4))
     dt = result["physics"]["frame_dt"]
     for backend, per in result["per_backend"].items():
@@ -320,4 +320,4 @@ def plot(result: dict, path: Path) -> Path:
     for ax in axes:
         ax.legend()
     fig.suptitle(f"{result['task']} ({result['preset']}): {' vs '.join(result['backends'])}")
-    return _save_figure(fig, path)
+    return save_figure(fig, path)

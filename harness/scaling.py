@@ -107,12 +107,11 @@ def read_csv(path: str | Path) -> list[dict]:
 
 def plot(csv_paths: list[str | Path], out_png: str | Path, title: str = "") -> Path:
     """Log-log env-steps/s vs num_envs: one colour per backend x task, solid forward, dashed with gradients."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import pandas as pd
-    import seaborn as sns
+
+    from harness.report.plots import pyplot, save_figure
+
+    plt, sns = pyplot()
 
     records = []
     for path in csv_paths:
@@ -128,7 +127,6 @@ def plot(csv_paths: list[str | Path], out_png: str | Path, title: str = "") -> P
                         }
                     )
     data = pd.DataFrame(records)
-    sns.set_theme(style="whitegrid")
     fig, ax = plt.subplots(figsize=(10, 5.5))
     sns.lineplot(data=data, x="num envs", y="env-steps/s", hue="backend / task", style="pass", markers=True, ax=ax)
     sns.move_legend(ax, "upper left", bbox_to_anchor=(1.01, 1.0))  # beside the axes: inside, it hid curves
@@ -136,11 +134,7 @@ def plot(csv_paths: list[str | Path], out_png: str | Path, title: str = "") -> P
     ax.set_yscale("log")
     ax.set_title(title or "throughput vs number of envs (log-log)")
     fig.tight_layout()
-    out_png = Path(out_png)
-    out_png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out_png, dpi=90)
-    plt.close(fig)
-    return out_png
+    return save_figure(fig, out_png)
 
 
 def write(rows: list[dict], out_prefix: str | Path, command: str, provenance: dict) -> list[Path]:

@@ -16,8 +16,9 @@ from pathlib import Path
 import pytest
 
 import backends
-from harness.bench import RunSpec, load_spec, plan, run_suite
+from harness.bench import RunSpec, load_spec, plan
 from harness.results import RunError
+from harness.runner import run_suite
 
 POINTMASS = pytest.mark.skipif("pointmass" not in backends.available(), reason="the point-mass plug-in is absent")
 

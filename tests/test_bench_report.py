@@ -1,4 +1,4 @@
-"""The benchmark suite's tables and plots (harness/bench_report.py) on synthetic run directories whose
+"""The benchmark suite's tables and plots (the package harness/report/) on synthetic run directories whose
 numbers are known: IQM and bootstrap CIs, improvement over the base algorithm, gradient-variance quartiles
 and growth, the wall-time split, sim-to-sim gaps, landscapes, checks, provenance and the PNGs."""
 
@@ -14,22 +14,12 @@ import pandas as pd
 import pytest
 from scipy import stats
 
-from harness.bench_report import (
-    base_algo,
-    collect_runs,
-    curve_settings,
-    grad_variance_growth_table,
-    grad_variance_table,
-    header_lines,
-    iqm_difference_with_ci,
-    learning_curve_frame,
-    load_run,
-    minimum_detectable_difference,
-    power_table,
-    returns_table,
-    seeds_needed,
-    write_bench_report,
-)
+from harness.report import write_bench_report
+from harness.report.documents import header_lines
+from harness.report.plots import curve_settings, learning_curve_frame
+from harness.report.records import base_algo, collect_runs, load_run
+from harness.report.stats import iqm_difference_with_ci, minimum_detectable_difference, seeds_needed
+from harness.report.tables import grad_variance_growth_table, grad_variance_table, power_table, returns_table
 
 COMMIT = "c0ffee1"
 HEADER = {
@@ -496,6 +486,13 @@ def test_empty_inputs_write_tables_and_skip_plots(tmp_path):
     assert "No rows" in (tmp_path / "empty" / "backends.md").read_text()
     assert "skipped plot learning_curves_steps.png" in log.getvalue()
     assert "Skipped" in (tmp_path / "empty" / "index.md").read_text()
+
+
+def test_the_log_goes_to_standard_output_as_it_is_at_the_call(tmp_path, capsys):
+    """Without a stream the log reaches today's stdout (here capsys's), not the one the package was imported
+    under: a test's captured output, closed since, would make a later report fail."""
+    write_bench_report([], [], tmp_path / "empty", HEADER)
+    assert "[bench report] skipped plot learning_curves_steps.png" in capsys.readouterr().out
 
 
 def test_base_algo():

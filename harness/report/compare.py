@@ -1,8 +1,12 @@
-"""Tables and figures from run directories (``config.json``, ``metrics.jsonl``, ``eval.json``).
+"""The ``report`` verb (``python -m harness report --runs RUN... --out PREFIX``): tables and curves from run
+directories (``config.json``, ``metrics.jsonl``, ``eval.json``).
 
-:func:`write_report` writes a per-run table and, grouped by (task, backend, algorithm), the mean over
-training seeds with the standard deviation and a 95% confidence interval of the mean (Student t,
-n - 1 degrees of freedom); the curves show the mean over seeds with a 95% bootstrap band.
+:func:`write_report` writes ``PREFIX.md`` and ``PREFIX.csv`` (one row per run), ``PREFIX_by_algo.csv`` and a
+second table in ``PREFIX.md`` (per task, backend and algorithm, over training seeds) and ``PREFIX.png``
+(curves). Over seeds every column gets the bench report's statistics (:mod:`harness.report.stats`): the
+interquartile mean with a 95% percentile-bootstrap confidence interval over seeds (2000 resamples,
+``np.random.default_rng(0)``; n/a under 2 seeds or with an infinite value), and the mean and sample std.
+The curves show the mean over seeds with a 95% bootstrap band.
 """
 
 from __future__ import annotations
@@ -11,6 +15,11 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
+
+from harness.report.formatting import fmt, fmt_ci, is_missing
+from harness.report.plots import CURVE_BOOTSTRAP, pyplot, save_figure
+from harness.report.stats import BOOTSTRAP_SEED, epoch_median, iqm, iqm_with_ci, sample_std
 from harness.results import atomic_write_text, read_metrics
 
 COLUMNS = (
@@ -43,10 +52,10 @@ def _read_rows(run: Path) -> list[dict]:
 
 
 def _median(rows: list[dict], key: str) -> float | None:
-    """The median of ``key`` over the epochs that logged it (NaN, a skipped update, dropped; +inf, an
-    unresolved noise-to-signal ratio, kept: a median is defined with it)."""
-    values = sorted(r[key] for r in rows if r.get(key) is not None and r[key] == r[key])
-    return values[len(values) // 2] if values else None
+    """The median of ``key`` over the epochs that logged it (:func:`harness.report.stats.epoch_median`:
+    NaN, a skipped update, dropped; +inf, an unresolved noise-to-signal ratio, kept); None when none did."""
+    median = epoch_median(r.get(key) for r in rows)
+    return None if math.isnan(median) else median
 
 
 def summarize(run: str | Path) -> dict:
@@ -83,21 +92,15 @@ def summarize(run: str | Path) -> dict:
     }
 
 
-def _fmt(value) -> str:
-    if value is None:
-        return "n/a"
-    if isinstance(value, float):
-        if math.isnan(value):
-            return "nan"
-        return f"{value:.3g}" if abs(value) >= 1e4 or (0 < abs(value) < 1e-2) else f"{value:.2f}"
-    return str(value)
+def _csv_cell(value) -> str:
+    return "" if value is None else str(value)
 
 
 def write_table(summaries: list[dict], out_prefix: str | Path, command: str) -> tuple[Path, Path]:
     out_prefix = Path(out_prefix)
     md = [f"Made by: `{command}`", "", "| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
-    md += ["| " + " | ".join(_fmt(s[c]) for c in COLUMNS) + " |" for s in summaries]
-    csv = [",".join(COLUMNS)] + [",".join("" if s[c] is None else str(s[c]) for c in COLUMNS) for s in summaries]
+    md += ["| " + " | ".join(fmt(s[c]) for c in COLUMNS) + " |" for s in summaries]
+    csv = [",".join(COLUMNS)] + [",".join(_csv_cell(s[c]) for c in COLUMNS) for s in summaries]
     md_path = atomic_write_text(out_prefix.with_suffix(".md"), "\n".join(md) + "\n")
     csv_path = atomic_write_text(out_prefix.with_suffix(".csv"), "\n".join(csv) + "\n")
     return md_path, csv_path
@@ -113,13 +116,29 @@ AGGREGATED = (
     "final_lambda",
     "wall_min",
 )
-# two-sided 95% Student t quantiles for n - 1 = 1..30 degrees of freedom
-_T95 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145, 2.131)
-_T95 += (2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048, 2.045, 2.042)
+#: what ``PREFIX_by_algo.csv`` gives of every AGGREGATED column over seeds
+STATISTICS = ("iqm", "ci_low", "ci_high", "mean", "std")
+
+
+def over_seeds(values: list[float]) -> dict[str, float | None]:
+    """IQM with its 95% percentile-bootstrap CI (:func:`harness.report.stats.iqm_with_ci`), mean and sample
+    std of one column over seeds; None for what the values cannot give (no values; a CI and std under 2
+    values or with an infinite one, an unresolved noise-to-signal ratio)."""
+    x = np.asarray(values, dtype=float)
+    if not x.size:
+        return dict.fromkeys(STATISTICS)
+    if np.isfinite(x).all():
+        point, low, high = iqm_with_ci(x)
+        spread = sample_std(x)
+    else:
+        point, low, high, spread = iqm(x), math.nan, math.nan, math.nan
+    found = {"iqm": point, "ci_low": low, "ci_high": high, "mean": float(x.mean()), "std": spread}
+    return {k: None if math.isnan(v) else v for k, v in found.items()}
 
 
 def aggregate(summaries: list[dict]) -> list[dict]:
-    """Per (task, backend, algo): seeds, and mean / std / 95% CI half-width of every AGGREGATED column."""
+    """Per (task, backend, algo): seeds, and the STATISTICS of every AGGREGATED column over its seeds
+    (the seeds that have a value: a run without eval.json counts for the training columns only)."""
     groups: dict[tuple, list[dict]] = {}
     for s in summaries:
         groups.setdefault((s["task"], s["backend"], s["algo"]), []).append(s)
@@ -128,14 +147,17 @@ def aggregate(summaries: list[dict]) -> list[dict]:
         row = {"task": task, "backend": backend, "algo": algo, "seeds": len(members)}
         row["env_steps"] = members[0]["env_steps"]
         for col in AGGREGATED:
-            values = [m[col] for m in members if m[col] is not None and not math.isnan(m[col])]
-            n = len(values)
-            mean = sum(values) / n if n else None
-            std = math.sqrt(sum((v - mean) ** 2 for v in values) / (n - 1)) if n > 1 else None
-            half = _T95[min(n - 1, len(_T95)) - 1] * std / math.sqrt(n) if n > 1 else None
-            row[f"{col}_mean"], row[f"{col}_std"], row[f"{col}_ci95"] = mean, std, half
+            found = over_seeds([m[col] for m in members if not is_missing(m[col])])
+            row |= {f"{col}_{k}": v for k, v in found.items()}
         rows.append(row)
     return rows
+
+
+def _iqm_cell(row: dict, col: str) -> str:
+    """``IQM [CI low, CI high]``, the IQM alone where there is no interval."""
+    low, high = row[f"{col}_ci_low"], row[f"{col}_ci_high"]
+    interval = "" if is_missing(low) or is_missing(high) else " " + fmt_ci(low, high)
+    return fmt(row[f"{col}_iqm"]) + interval
 
 
 def write_report(runs: list[Path], out_prefix: str | Path, command: str, plot: bool = True) -> list[Path]:
@@ -144,14 +166,13 @@ def write_report(runs: list[Path], out_prefix: str | Path, command: str, plot: b
     summaries = [summarize(r) for r in runs]
     md_path, csv_path = write_table(summaries, out_prefix, command)
     agg = aggregate(summaries)
-    cols = ["task", "backend", "algo", "seeds", "env_steps"] + [
-        f"{c}_{k}" for c in AGGREGATED for k in ("mean", "std", "ci95")
-    ]
-    csv = [",".join(cols)] + [",".join("" if r[c] is None else str(r[c]) for c in cols) for r in agg]
+    cols = ["task", "backend", "algo", "seeds", "env_steps"] + [f"{c}_{k}" for c in AGGREGATED for k in STATISTICS]
+    csv = [",".join(cols)] + [",".join(_csv_cell(r[c]) for c in cols) for r in agg]
     agg_csv = atomic_write_text(out_prefix.parent / f"{out_prefix.name}_by_algo.csv", "\n".join(csv) + "\n")
     md = [
         "",
-        "Mean over training seeds (std; 95% CI of the mean, Student t):",
+        "Over training seeds: interquartile mean [95% percentile-bootstrap CI over seeds, 2000 resamples], the "
+        "bench report's statistics; mean and std in the `_by_algo.csv`:",
         "",
     ]
     if any(r["seeds"] < 2 for r in agg):
@@ -162,13 +183,12 @@ def write_report(runs: list[Path], out_prefix: str | Path, command: str, plot: b
         ]
     md += [
         "| task | backend | algo | seeds | env steps | eval final | eval initial | train return, last 20 | "
-        "median actor-grad var | final lambda | wall min |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "median actor-grad var | median actor-grad NSR | median actor-grad cosine | final lambda | wall min |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in agg:
-        cells = [r["task"], r["backend"], r["algo"], str(r["seeds"]), _fmt(r["env_steps"])]
-        for c in AGGREGATED:
-            cells.append(f"{_fmt(r[c + '_mean'])} ({_fmt(r[c + '_std'])}; ±{_fmt(r[c + '_ci95'])})")
+        cells = [r["task"], r["backend"], r["algo"], str(r["seeds"]), fmt(r["env_steps"])]
+        cells += [_iqm_cell(r, c) for c in AGGREGATED]
         md.append("| " + " | ".join(cells) + " |")
     with md_path.open("a") as fh:
         fh.write("\n".join(md) + "\n")
@@ -180,13 +200,9 @@ def write_report(runs: list[Path], out_prefix: str | Path, command: str, plot: b
 
 def plot_curves(runs: list[str | Path], out_png: str | Path, smooth: int = 10) -> Path:
     """Train return vs env steps and vs wall time, actor-gradient variance and lambda, per run."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import pandas as pd
-    import seaborn as sns
 
+    plt, sns = pyplot()
     frames = []
     for run in runs:
         rows = _read_rows(Path(run))
@@ -202,8 +218,7 @@ def plot_curves(runs: list[str | Path], out_png: str | Path, smooth: int = 10) -
     data = pd.concat(frames, ignore_index=True)
     # several seeds of one algorithm: one line per algorithm (mean, 95% bootstrap band); else one per run
     hue = "algo" if data.groupby("algo")["run"].nunique().max() > 1 else "run"
-    band = {"errorbar": ("ci", 95), "n_boot": 200, "seed": 0}
-    sns.set_theme(style="whitegrid")
+    band = {"errorbar": ("ci", 95), "n_boot": CURVE_BOOTSTRAP, "seed": BOOTSTRAP_SEED}
     fig, axes = plt.subplots(1, 4, figsize=(22, 4.5))
     sns.lineplot(data=data, x="env_steps", y="return (smoothed)", hue=hue, ax=axes[0], **band)
     sns.lineplot(data=data, x="epoch", y="wall time (min)", hue=hue, ax=axes[1], legend=False, **band)
@@ -215,8 +230,4 @@ def plot_curves(runs: list[str | Path], out_png: str | Path, smooth: int = 10) -
     axes[2].set_title("actor-gradient variance (K groups)")
     axes[3].set_title("lambda")
     fig.tight_layout()
-    out_png = Path(out_png)
-    out_png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out_png, dpi=90)
-    plt.close(fig)
-    return out_png
+    return save_figure(fig, out_png)

@@ -1,0 +1,223 @@
+"""Verbs that check gradients and physics: gradcheck, grad-growth, grad-paths, parity, contact-jacobians, crosscheck."""
+
+from __future__ import annotations
+
+from algorithms.config import ALGORITHMS
+from harness.cli.inputs import (
+    BadInput,
+    _check_device,
+    _check_output_file,
+    _check_preset,
+    _command,
+    _make_sim,
+    _validate_names,
+    sim_physics,
+)
+
+
+def cmd_gradcheck(args) -> int:
+    from harness.gradcheck import DEFAULT_TOLERANCE, gradcheck
+
+    _validate_names(args.backend, args.task)
+    _check_device(args.device)
+    if args.out:
+        _check_output_file(args.out)
+    sim = _make_sim(args, horizon=args.steps)
+    tolerance = args.tolerance or DEFAULT_TOLERANCE
+    start_height = None
+    lifted = "root" if sim.layout.floating_base else "lowest particle" if sim.layout.num_particles else None
+    if not args.with_contact and lifted:
+        start_height = sim.task.airborne_height  # high enough that `steps` of free fall never reach the ground
+    segment = "with contact" if start_height is None else f"contact-free ({lifted} lifted to {start_height} m)"
+    if args.settle:
+        if start_height is not None:
+            raise BadInput("--settle needs --with-contact (settling in the air would only fall)")
+        segment += f", after {args.settle} zero-action steps"
+    print(f"gradcheck {args.backend}/{args.task}: {args.num_envs} envs, {args.steps} steps, {segment}", flush=True)
+    result = gradcheck(sim, steps=args.steps, seed=args.seed, start_height=start_height, settle_steps=args.settle)
+    for label, error, mode in (
+        ("d loss / d actions:      ", result.action_rel_error, result.action_mode),
+        ("d loss / d initial state:", result.state_rel_error, result.state_mode),
+    ):
+        print(f"  {label}  max relative error {error:.3e} (central differences per {mode[:-1]})")
+    ok = result.max_rel_error <= tolerance
+    print(f"max relative error {result.max_rel_error:.3e} (tolerance {tolerance:.1e}): {'PASS' if ok else 'FAIL'}")
+    if args.out:
+        from harness.results import provenance, write_json
+
+        summary = {
+            "backend": args.backend,
+            "task": args.task,
+            "num_envs": args.num_envs,
+            "steps": args.steps,
+            "segment": segment,
+            "action_rel_error": result.action_rel_error,
+            "state_rel_error": result.state_rel_error,
+            "max_rel_error": result.max_rel_error,
+            "tolerance": tolerance,
+            "passed": ok,
+            **sim_physics(sim),
+        }
+        print(f"wrote {write_json(args.out, {'result': summary, 'provenance': provenance(_command())})}")
+    return 0 if ok else 1
+
+
+def cmd_grad_growth(args) -> int:
+    from pathlib import Path
+
+    from harness.grad_growth import grad_growth, parse_variant
+    from harness.results import provenance, write_json
+    from harness.train import read_config
+
+    read_config(Path(args.run))
+    if not (Path(args.run) / "checkpoint.pt").exists():
+        raise BadInput(f"{args.run} has no checkpoint.pt")
+    if args.out:
+        _check_output_file(args.out)
+    variants = args.variant or [""]
+    try:
+        for v in variants:
+            parse_variant(v)
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
+    result = grad_growth(args.run, variants, windows=args.windows)
+    if args.out:
+        print(f"wrote {write_json(args.out, {**result, 'provenance': provenance()})}")
+    return 0
+
+
+def cmd_grad_paths(args) -> int:
+    from harness.grad_paths import grad_paths, table
+
+    _validate_names(args.backend, args.task)
+    _check_device(args.device)
+    _check_preset(args.task, args.preset)
+    if args.algo not in ALGORITHMS:
+        raise BadInput(f"unknown algorithm {args.algo!r}; choose from: {', '.join(ALGORITHMS)}")
+    if args.out:
+        _check_output_file(args.out)
+    print(f"grad-paths {args.algo} on {args.backend}/{args.task}: {args.epochs} epochs, four rollouts of each window")
+    try:
+        result = grad_paths(
+            args.task,
+            args.backend,
+            algo_name=args.algo,
+            epochs=args.epochs,
+            num_envs=args.num_envs,
+            horizon=args.horizon,
+            seed=args.seed,
+            preset=args.preset,
+            device=args.device,
+            options=dict(args.backend_option or []),
+            progress=lambda line: print(line, flush=True),
+        )
+    except ValueError as exc:  # an invalid configuration or adapter option, refused before any work
+        raise BadInput(str(exc)) from None
+    text = table(result)
+    print(text)
+    if args.out:
+        _write_result_and_table(args.out, result, text)
+    return 0
+
+
+def cmd_parity(args) -> int:
+    from harness.parity import parity, plot, table
+
+    _validate_names(task=args.task)
+    for name in args.backends:
+        _validate_names(backend=name)
+    if len(set(args.backends)) < 2:
+        raise BadInput(f"parity compares two different backends, got {' '.join(args.backends)}")
+    if args.out:
+        _check_output_file(args.out)
+    _check_preset(args.task, args.preset)
+    try:
+        result = parity(
+            args.task,
+            args.backends,
+            preset=args.preset,
+            num_envs=args.num_envs,
+            seeds=args.episode_seeds,
+            steps=args.steps,
+            max_steps=args.max_steps,
+            seed=args.seed,
+            progress=lambda line: print(line, flush=True),
+        )
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
+    text = table(result)
+    print(text)
+    print(f"targets {'all hold' if result['passed'] else 'not all hold'}: {result['holds']}")
+    if args.out:
+        stem = _write_result_and_table(args.out, result, text)
+        print(f"wrote {plot(result, stem.with_suffix('.png'))}")
+    return 0
+
+
+def _write_result_and_table(out: str, result: dict, text: str):
+    """``STEM.json`` (the result and its provenance) and ``STEM.md`` (``text``), STEM being ``out``
+    without a ``.json`` suffix; returns STEM."""
+    from pathlib import Path
+
+    from harness.results import atomic_write_text, provenance, write_json
+
+    out = Path(out)
+    stem = out.with_suffix("") if out.suffix == ".json" else out
+    print(f"wrote {write_json(stem.with_suffix('.json'), {'result': result, 'provenance': provenance(_command())})}")
+    print(f"wrote {atomic_write_text(stem.with_suffix('.md'), text)}")
+    return stem
+
+
+def cmd_contact_jacobians(args) -> int:
+    from harness.contact_jacobians import contact_jacobians, table
+
+    _validate_names(args.backend, args.task)
+    _check_device(args.device)
+    if args.out:
+        _check_output_file(args.out)
+    _check_preset(args.task, args.preset)
+    try:
+        result = contact_jacobians(
+            args.task,
+            args.backend,
+            device=args.device,
+            states=args.states,
+            num_envs=args.num_envs,
+            stride=args.stride,
+            policy_epochs=args.policy_epochs,
+            seed=args.seed,
+            preset=args.preset,
+            options=dict(args.backend_option or []),
+            progress=lambda line: print(line, flush=True),
+        )
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
+    text = table(result)
+    print(text)
+    if args.out:
+        _write_result_and_table(args.out, result, text)
+    return 0
+
+
+def cmd_crosscheck(args) -> int:
+    import json
+
+    from harness.crosscheck import crosscheck, forward_crosscheck
+    from harness.results import provenance, write_json
+
+    _validate_names(task=args.task)
+    for name in args.backends:
+        _validate_names(backend=name)
+    if args.out:
+        _check_output_file(args.out)
+    from tasks import task_class
+
+    if task_class(args.task).layout.num_particles:  # soft bodies: forward rollouts (module docstring)
+        report = forward_crosscheck(args.task, args.backends, num_envs=args.num_envs, steps=args.steps, seed=args.seed)
+        print(json.dumps(report["pairs"], indent=2))
+    else:
+        report = crosscheck(args.task, args.backends, num_envs=args.num_envs, steps=args.steps, seed=args.seed)
+        print(json.dumps(report["segments"], indent=2))
+    if args.out:
+        print(f"wrote {write_json(args.out, {**report, 'provenance': provenance()})}")
+    return 0

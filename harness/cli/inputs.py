@@ -1,0 +1,101 @@
+"""What every verb checks before work: the one-line refusal (:class:`BadInput`, exit 2) and the shared
+validations of names, devices, presets, output paths and hyperparameters."""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+
+EXIT_BAD_INPUT = 2
+
+
+class BadInput(Exception):
+    """User input we refuse: reported as one line, exit code 2."""
+
+
+def _command() -> str:
+    return "python -m harness " + " ".join(sys.argv[1:])
+
+
+def _validate_names(backend: str | None = None, task: str | None = None) -> None:
+    import backends
+    import tasks
+    from simcore import UnknownNameError  # the registries' own message, without loading an entry point
+
+    for kind, name, choices in (("backend", backend, backends.available()), ("task", task, tasks.available())):
+        if name is not None and name not in choices:
+            raise BadInput(str(UnknownNameError(kind, name, choices)))
+
+
+def _check_device(device: str) -> None:
+    import torch
+
+    try:
+        parsed = torch.device(device)
+    except (RuntimeError, ValueError):
+        raise BadInput(f"unknown device {device!r}; use cpu or cuda[:N]") from None
+    if parsed.type not in ("cpu", "cuda"):
+        raise BadInput(f"device {device!r} is not supported; use cpu or cuda[:N]")
+    if parsed.type == "cuda" and not torch.cuda.is_available():
+        raise BadInput(f"device {device!r}: this machine has no CUDA device; use cpu")
+
+
+def _make_sim(args, horizon: int):
+    # Imports here, not at module level: `list` and argument errors must not load an engine.
+    from harness.envs import make_sim
+    from tasks import make_task
+
+    try:
+        options = dict(getattr(args, "backend_option", None) or [])
+        task = make_task(args.task, preset=getattr(args, "preset", None))
+        return make_sim(args.backend, task, args.num_envs, args.device, args.seed, horizon, **options)
+    except (RuntimeError, ValueError) as exc:
+        raise BadInput(f"cannot build {args.backend}/{args.task} on {args.device}: {exc}") from exc
+
+
+def _check_preset(task: str, preset: str | None) -> None:
+    """Refuse a physics preset the task does not define, in one line naming the ones it does."""
+    from tasks import UnknownPresetError, make_task
+
+    try:
+        make_task(task, preset=preset)
+    except UnknownPresetError as exc:
+        raise BadInput(str(exc)) from None
+
+
+def _check_output_file(out: str) -> None:
+    """A result file (or prefix) we may write: not empty, not a directory, in a writable place."""
+    from pathlib import Path
+
+    from harness.results import writable_parent
+
+    if not out.strip():
+        raise BadInput("--out is empty: name a file")
+    if Path(out).is_dir():
+        raise BadInput(f"--out {out} is a directory; name a file")
+    if writable_parent(Path(out)) is None:
+        raise BadInput(f"--out {out}: its nearest existing folder is not a writable directory")
+
+
+def _algo_config(args, name: str):
+    """The preset ``name`` with every hyperparameter flag the user gave applied (validated once)."""
+    from algorithms.config import AlgoConfig, preset
+
+    try:
+        cfg = preset(name)
+    except KeyError as exc:
+        raise BadInput(exc.args[0]) from None
+    changes = {}
+    for f in dataclasses.fields(AlgoConfig):
+        value = getattr(args, f.name, None)
+        if value is not None and f.name != "algo":
+            changes[f.name] = tuple(value) if isinstance(value, list) else value
+    try:
+        return cfg.replace(**changes)
+    except ValueError as exc:
+        raise BadInput(f"bad configuration: {exc}") from None
+
+
+def sim_physics(sim) -> dict:
+    """What a check's result file says about the physics it ran: preset, constants, integrator, mapping."""
+    return {**sim.task.physics_record(), "integrator": sim.integrator, "physics_mapping": sim.physics_mapping()}

@@ -1,0 +1,226 @@
+"""Verbs of training runs and suites: list, train, eval, report, sweep, bench, bench-run, landscape."""
+
+from __future__ import annotations
+
+import sys
+
+from harness.cli.inputs import (
+    BadInput,
+    _algo_config,
+    _check_device,
+    _check_output_file,
+    _check_preset,
+    _command,
+    _validate_names,
+)
+from harness.cli.parser import FLAGS
+
+
+def cmd_list(args) -> int:
+    import backends
+    import tasks
+
+    print("backends: " + ", ".join(backends.available()))
+    print("tasks:    " + ", ".join(tasks.available()))
+    for name in tasks.available():
+        cls = tasks.task_class(name)
+        for preset, value in getattr(cls, "presets", {}).items():
+            default = " (default)" if preset == cls.default_preset else ""
+            print(f"  {name} preset {preset}{default}: {value.about}")
+    return 0
+
+
+def cmd_train(args) -> int:
+    from harness.train import resume, train
+
+    if args.resume:
+        given = [
+            "--" + name.replace("_", "-")
+            for name, value in vars(args).items()
+            if value is not None
+            and name not in ("verb", "resume", "epochs", "checkpoint_every")
+            and value != FLAGS.get(name, {}).get("default")
+        ]
+        if given:
+            raise BadInput(f"--resume continues the run as configured; drop {', '.join(given)} (only --epochs)")
+        resume(args.resume, args.epochs, checkpoint_every=args.checkpoint_every, command=_command())
+        return 0
+    missing = [name for name in ("backend", "task", "algo", "epochs", "out") if getattr(args, name) is None]
+    if missing:
+        raise BadInput("train needs " + ", ".join("--" + m.replace("_", "-") for m in missing) + " (or --resume DIR)")
+    _validate_names(args.backend, args.task)
+    _check_device(args.device)
+    _check_preset(args.task, args.preset)
+    cfg = _algo_config(args, args.algo)
+    train(
+        args.out,
+        args.task,
+        args.backend,
+        cfg,
+        args.epochs,
+        seed=args.seed,
+        device=args.device,
+        checkpoint_every=args.checkpoint_every,
+        command=_command(),
+        preset=args.preset,
+    )
+    return 0
+
+
+def cmd_eval(args) -> int:
+    from pathlib import Path
+
+    from harness.train import eval_file_name, evaluate, read_config
+
+    config = read_config(Path(args.run))
+    if args.backend:
+        _validate_names(args.backend, config["task"])
+    if args.out:
+        _check_output_file(args.out)
+    result = evaluate(
+        args.run,
+        seeds=args.eval_seeds,
+        num_envs=args.num_envs,
+        max_steps=args.max_steps,
+        backend=args.backend,
+        out=args.out,
+    )
+    print(f"initial policy: mean return {result['initial']['mean_return']:.1f}")
+    print(
+        f"final policy:   mean return {result['final']['mean_return']:.1f} "
+        f"(std over {args.eval_seeds} seeds {result['final']['std_over_seeds']:.1f})"
+    )
+    written = args.out or Path(args.run) / eval_file_name(result["backend"], result["trained_on"])
+    print(f"wrote {written}")
+    return 0
+
+
+def cmd_report(args) -> int:
+    from pathlib import Path
+
+    from harness.report import write_report
+    from harness.train import read_config
+
+    runs = [Path(r) for r in args.runs]
+    for run in runs:
+        read_config(run)
+    _check_output_file(args.out)
+    for path in write_report(runs, args.out, _command(), plot=not args.no_plot):
+        print(f"wrote {path}")
+    return 0
+
+
+def cmd_sweep(args) -> int:
+    from pathlib import Path
+
+    from harness.report import write_report
+    from harness.train import evaluate, resume, train
+
+    _validate_names(args.backend, args.task)
+    _check_device(args.device)
+    configs = {name: _algo_config(args, name) for name in args.algos}  # refuse bad input before any training
+    if not args.out.strip():
+        raise BadInput("--out is empty: name a directory for the sweep")
+    if Path(args.out).exists() and not Path(args.out).is_dir():
+        raise BadInput(f"--out {args.out} is an existing file, not a directory")
+    if args.launcher != "local" or (args.jobs or 1) > 1:
+        return _sweep_on_launcher(args, configs)
+    runs = []
+    for name, cfg in configs.items():
+        for seed in args.seeds:
+            run = Path(args.out) / f"{args.task}_{args.backend}_{name}_s{seed}"
+            resuming = (run / "config.json").exists()
+            print(f"== {run.name}{' (resume)' if resuming else ''}", flush=True)
+            if resuming:
+                resume(run, args.epochs, command=_command())
+            else:
+                train(run, args.task, args.backend, cfg, args.epochs, seed=seed, device=args.device, command=_command())
+            evaluate(run, seeds=args.eval_seeds, max_steps=args.max_steps)
+            runs.append(run)
+    paths = write_report(runs, Path(args.out) / "summary", _command())
+    print(Path(paths[0]).read_text())
+    return 0
+
+
+def _sweep_on_launcher(args, configs: dict) -> int:
+    """The sweep's runs as jobs of the suite's runner: local processes (--jobs N) or Ray tasks. Each run
+    is one ``bench-run`` job in the sweep's folder; its log goes to OUT/logs."""
+    from pathlib import Path
+
+    from harness.bench import RunSpec, train_job
+    from harness.launchers import make_launcher
+    from harness.report import write_report
+    from harness.runner import run_jobs
+
+    out = Path(args.out).resolve()
+    jobs = []
+    for name in configs:
+        for seed in args.seeds:
+            spec = RunSpec(
+                task=args.task,
+                backend=args.backend,
+                algo=name,
+                seed=seed,
+                epochs=args.epochs,
+                num_envs=args.num_envs,
+                horizon=args.horizon,
+                device=args.device,
+                eval_seeds=args.eval_seeds,
+                eval_max_steps=args.max_steps,
+            )
+            jobs.append(train_job(spec, out / f"{args.task}_{args.backend}_{name}_s{seed}"))
+    launcher = make_launcher(args.launcher, args.jobs, args.address, args.device, args.gpus_per_run)
+    try:
+        run_jobs(jobs, out, launcher.workers, "sweep", launcher=launcher)
+    finally:
+        launcher.close()
+    failed = [job.label for job in jobs if job.state != "done" and job.state != "reused"]
+    runs = [job.run_dir for job in jobs if job.state in ("done", "reused")]
+    if runs:
+        paths = write_report(runs, out / "summary", _command())
+        print(Path(paths[0]).read_text())
+    if failed:
+        print(f"{len(failed)} run(s) failed (logs in {out / 'logs'}): {', '.join(failed)}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def cmd_bench(args) -> int:
+    from harness.runner import run_suite
+
+    return run_suite(
+        profile=args.profile,
+        spec_file=args.spec,
+        store=args.store,
+        jobs=args.jobs,
+        dry_run=args.dry_run,
+        report_only=args.report_only,
+        command=_command(),
+        launcher=args.launcher,
+        address=args.address,
+        gpus_per_run=args.gpus_per_run,
+    )
+
+
+def cmd_bench_run(args) -> int:
+    from harness.runner import bench_run
+
+    bench_run(args.run_dir)
+    return 0
+
+
+def cmd_landscape(args) -> int:
+    from pathlib import Path
+
+    from harness.landscape import compute_landscape, plot_landscape, write_landscape
+    from harness.train import read_config
+
+    read_config(Path(args.run))
+    result = compute_landscape(
+        args.run, grid=args.grid, span=args.span, num_envs=args.num_envs, seed=args.seed, warmup_steps=args.warmup_steps
+    )
+    print(f"wrote {write_landscape(args.run, result)}")
+    print(f"wrote {plot_landscape(result, Path(args.run) / 'landscape.png')}")
+    r = result["roughness"]
+    print(f"roughness: h-step {r['h_step']:.3f}, TD-lambda {r['td_lambda']:.3f}")
+    return 0

@@ -1,0 +1,530 @@
+"""The bench report's tables as documents: a :class:`Table` (title, what its numbers rest on, notes, one
+or more :class:`Section`) written as ``NAME.md`` with a provenance paragraph and, per section,
+``NAME[SUFFIX].csv`` with ``NAME[SUFFIX].provenance.json`` beside it (:func:`write_table`); and one
+``*_document`` function per table, which :func:`build_tables` calls in the order ``index.md`` lists them."""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pandas as pd
+
+from harness.report.formatting import fmt, fmt_ci, fmt_count, fmt_pct, fmt_range, fmt_verdict, is_missing
+from harness.report.records import CheckRecord, RunRecord
+from harness.report.stats import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, EFFECTS
+from harness.report.tables import (
+    BACKEND_MEASURES,
+    TIME_PARTS,
+    backends_table,
+    checks_table,
+    grad_variance_growth_table,
+    grad_variance_table,
+    landscape_table,
+    power_table,
+    returns_table,
+    sim_to_sim_mean_table,
+    sim_to_sim_table,
+    throughput_table,
+    wall_time_table,
+)
+from harness.results import atomic_write_text, write_json
+
+# -- Markdown and CSV -----------------------------------------------------------------------------
+ColumnSpec = list[tuple[str, str | Callable[[pd.Series], str]]]  # (header, column name or row -> cell)
+
+
+@dataclass
+class Section:
+    """One table: its rows, how the Markdown shows them, and the suffix of its CSV (``""``: ``NAME.csv``)."""
+
+    frame: pd.DataFrame
+    columns: ColumnSpec
+    heading: str | None = None
+    csv_suffix: str = ""
+    empty: str = "none"
+
+
+@dataclass
+class Table:
+    name: str
+    title: str
+    rests_on: str
+    sections: list[Section]
+    notes: list[str] = field(default_factory=list)
+    input_commits: list[str] = field(default_factory=list)
+
+
+def markdown_rows(frame: pd.DataFrame, columns: ColumnSpec) -> list[str]:
+    """A Markdown table of ``frame`` as ``columns`` say."""
+    lines = ["| " + " | ".join(h for h, _ in columns) + " |", "|" + "---|" * len(columns)]
+    for _, row in frame.iterrows():
+        cells = [how(row) if callable(how) else fmt(row[how]) for _, how in columns]
+        lines.append("| " + " | ".join(cell.replace("|", "/") for cell in cells) + " |")
+    return lines
+
+
+def header_lines(header: dict) -> list[str]:
+    """The provenance paragraph of every Markdown table: command, commit, UTC time, packages, machine."""
+    commit = header.get("commit") or header.get("git_commit") or "unknown"
+    profile = f" (profile `{header['profile']}`)" if header.get("profile") else ""
+    spec = f" from `{header['spec']}`" if header.get("spec") else ""
+    lines = [
+        f"Made by: `{header.get('command', 'unknown')}`{profile}{spec}, commit `{commit}`, "
+        f"{header.get('created_utc', 'time unknown')}."
+    ]
+    packages = header.get("packages") or {}
+    listed = ", ".join(f"{name} {version or '(not installed)'}" for name, version in packages.items())
+    python = f"; Python {header['python']}" if header.get("python") else ""
+    lines.append(f"Packages: {listed or 'not recorded'}{python}.")
+    lines.append(f"Machine: {machine_text(header.get('machine') or {})}.")
+    return lines
+
+
+def machine_text(machine: dict) -> str:
+    """The machine a report was made on, in one line."""
+    if not machine:
+        return "not recorded"
+    parts = [str(machine.get("cpu_model", "CPU unknown"))]
+    if machine.get("cpu_count") is not None:
+        parts.append(f"{machine['cpu_count']} CPUs")
+    if machine.get("platform"):
+        parts.append(str(machine["platform"]))
+    if machine.get("torch_num_threads") is not None:
+        parts.append(f"torch threads {machine['torch_num_threads']}")
+    parts.append(f"OMP_NUM_THREADS={machine.get('OMP_NUM_THREADS')}")
+    parts.append("GPUs: " + (", ".join(machine.get("gpus") or []) or "none"))
+    return ", ".join(parts)
+
+
+def commit_counts(values: Iterable[str | None]) -> list[str]:
+    """``commit (n files)`` per distinct commit, the most frequent first; missing ones as ``unknown``."""
+    counts = Counter(v or "unknown" for v in values)
+    return [f"{commit} ({n})" for commit, n in counts.most_common()]
+
+
+def markdown_document(table: Table, header: dict) -> str:
+    lines = [f"# {table.title}", "", *header_lines(header), "", table.rests_on]
+    if table.input_commits:
+        lines[-1] += f" Inputs made at commit(s), with how many files: {', '.join(table.input_commits)}."
+    for note in table.notes:
+        lines += ["", note]
+    for section in table.sections:
+        lines.append("")
+        if section.heading:
+            lines += [f"## {section.heading}", ""]
+        if section.frame.empty:
+            lines.append(f"No rows: {section.empty}.")
+        else:
+            lines += markdown_rows(section.frame, section.columns)
+    return "\n".join(lines) + "\n"
+
+
+def write_table(table: Table, out_dir: Path, header: dict) -> list[Path]:
+    """``NAME.md``, and per section ``NAME[SUFFIX].csv`` with ``NAME[SUFFIX].provenance.json`` beside it."""
+    written = [atomic_write_text(out_dir / f"{table.name}.md", markdown_document(table, header))]
+    for section in table.sections:
+        stem = f"{table.name}{section.csv_suffix}"
+        csv_text = section.frame.to_csv(index=False, lineterminator="\n")
+        written.append(atomic_write_text(out_dir / f"{stem}.csv", csv_text))
+        sidecar = {
+            "table": stem,
+            "csv": f"{stem}.csv",
+            "markdown": f"{table.name}.md",
+            "title": table.title + (f": {section.heading}" if section.heading else ""),
+            "rests_on": table.rests_on,
+            "notes": table.notes,
+            "columns": list(section.frame.columns),
+            "input_commits": table.input_commits,
+            "provenance": header,
+        }
+        written.append(write_json(out_dir / f"{stem}.provenance.json", sidecar))
+    return written
+
+
+def _base_cell(row: pd.Series) -> str:
+    if not isinstance(row["base"], str):
+        return "-"
+    return row["base"] if not is_missing(row["base_seeds"]) else f"{row['base']} (no runs)"
+
+
+def rests_on_runs(runs: list[RunRecord], what: str = "training runs") -> str:
+    """The sentence saying what a table's numbers rest on: runs, groups, seeds, epochs, env steps."""
+    if not runs:
+        return f"Rests on no {what}."
+    seeds_per_group = Counter(r.group for r in runs).values()
+    return (
+        f"Rests on {len(runs)} {what} in {len(seeds_per_group)} (task, backend, algo, h, N, planned epochs) groups "
+        f"with {fmt_range(seeds_per_group)} training seeds each, {fmt_range(r.epochs for r in runs)} epochs and "
+        f"{fmt_range(r.env_steps for r in runs)} env steps per run."
+    )
+
+
+# -- the tables as documents ----------------------------------------------------------------------
+def _key_columns(*names: str) -> ColumnSpec:
+    labels = {"horizon": "h", "env_steps": "env steps per run", "num_envs": "N"}
+    return [(labels.get(n, n), n) for n in names]
+
+
+def _run_commits(runs: Iterable[RunRecord]) -> list[str]:
+    return commit_counts(r.commit for r in runs)
+
+
+def _whole(column: str):
+    """A cell of whole numbers from a column that pandas holds as floats (it has missing values)."""
+    return lambda r: "n/a" if is_missing(r[column]) else str(int(r[column]))
+
+
+def returns_document(runs: list[RunRecord]) -> Table:
+    """Final evaluation returns: IQM, CI and improvement over the base algorithm."""
+    evaluated = [r for r in runs if r.evaluation is not None]
+    returns = returns_table(runs)
+    eval_protocol = ""
+    if evaluated:
+        eval_protocol = (
+            f" Each run's final (and initial) policy is evaluated deterministically over "
+            f"{fmt_range(r.evaluation.get('seeds') or 0 for r in evaluated)} eval seeds x "
+            f"{fmt_range(r.evaluation.get('num_envs') or 0 for r in evaluated)} envs, first episode of each env."
+        )
+    return Table(
+        "returns",
+        "Final evaluation return per algorithm",
+        rests_on_runs(evaluated, "evaluated training runs") + eval_protocol,
+        [
+            Section(
+                returns,
+                _key_columns("task", "backend", "algo", "horizon", "num_envs", "seeds", "epochs", "env_steps")
+                + [
+                    ("IQM final", "iqm_final"),
+                    ("95% CI", lambda r: fmt_ci(r["iqm_ci_low"], r["iqm_ci_high"])),
+                    ("mean ± std", lambda r: f"{fmt(r['mean_final'])} ± {fmt(r['std_final'])}"),
+                    ("initial (mean)", "mean_initial"),
+                    ("vs base", _base_cell),
+                    ("IQM improvement", "improvement_iqm"),
+                    ("improvement 95% CI", lambda r: fmt_ci(r["improvement_ci_low"], r["improvement_ci_high"])),
+                    ("detectable at 80% power", "mde_80"),
+                ],
+                empty="no run has an eval.json",
+            ),
+            Section(
+                power_table(runs),
+                _key_columns("task", "backend", "num_envs", "epochs", "horizon", "algos", "seeds")
+                + [
+                    ("between-seed std (pooled)", "pooled_std"),
+                    ("base algorithms' mean", "base_mean"),
+                    ("std / base mean", "cv"),
+                ]
+                + [(f"seeds for +{round(e * 100)}%", _whole(f"seeds_for_{round(e * 100)}pct")) for e in EFFECTS],
+                heading="Statistical power: seeds per algorithm needed to detect an improvement",
+                csv_suffix="_power",
+                empty="no run has an eval.json",
+            ),
+        ],
+        [
+            "IQM: interquartile mean over training seeds (`scipy.stats.trim_mean(x, 0.25)`, rliable's "
+            "definition), each seed contributing its eval.json final mean return; under 4 seeds it trims "
+            "nothing and is the mean. 95% CI: percentile bootstrap over seeds, "
+            f"{BOOTSTRAP_RESAMPLES} resamples, `np.random.default_rng({BOOTSTRAP_SEED})` "
+            "(`scipy.stats.bootstrap`; one task and backend per row is one stratum, so rliable's stratified "
+            "bootstrap is this plain one). n/a under 2 seeds. mean ± std: sample std (n - 1).",
+            "IQM improvement: IQM(algo) - IQM(base) at the same task, backend, h, N and epochs (base of shac-tdfixed "
+            "and shac-tdadpt is shac, of sapo-tdfixed and sapo-tdadpt sapo), 95% CI from a two-sample unpaired "
+            "percentile bootstrap (each algorithm's seeds resampled on their own), n/a under 2 seeds on a side.",
+            "Detectable at 80% power: the smallest true difference of mean final returns between the algorithm "
+            "and its base that a two-sided two-sample t-test at level 0.05 detects with probability 0.8 at the "
+            "seeds they have, (t_0.975 + t_0.8) s sqrt(1/n1 + 1/n2), s the pair's pooled between-seed std; an "
+            "improvement below it is not evidence either way. Power table: the std pooled over every algorithm "
+            "of a setting, and the seeds per algorithm at which that test detects +25%, +50% and +100% of the base "
+            "algorithms' (shac, sapo) mean return (blank: over 10,000).",
+            "Runs without eval.json (unfinished) are left out of this table.",
+        ],
+        _run_commits(evaluated),
+    )
+
+
+def grad_variance_document(runs: list[RunRecord]) -> Table:
+    """Both actor-gradient statistics per horizon, and their growth from the shortest horizon to the longest."""
+    trained = [r for r in runs if r.epochs]
+    per_h = grad_variance_table(runs)
+
+    def with_ci(stem):
+        return lambda r: f"{fmt(r[stem + '_gmean'])} [{fmt(r[stem + '_ci_low'])}, {fmt(r[stem + '_ci_high'])}]"
+
+    def growth(stem):
+        return lambda r: (
+            f"{fmt(r[stem + '_growth'])} [{fmt(r[stem + '_growth_ci_low'])}, {fmt(r[stem + '_growth_ci_high'])}]"
+        )
+
+    return Table(
+        "grad_variance_vs_h",
+        "Actor-gradient variance against the horizon h: raw and scale-free",
+        rests_on_runs(trained),
+        [
+            Section(
+                per_h,
+                _key_columns("task", "backend", "algo", "num_envs", "epochs", "horizon", "seeds")
+                + [
+                    ("raw: seeds' gmean [95% CI]", with_ci("var")),
+                    ("raw: pooled median", "median"),
+                    ("raw: Q1", "q1"),
+                    ("raw: Q3", "q3"),
+                    ("NSR: seeds", "nsr_seeds"),
+                    ("NSR: seeds' gmean [95% CI]", with_ci("nsr")),
+                    ("NSR: pooled median", "nsr_median"),
+                ],
+                empty="no run has metrics",
+            ),
+            Section(
+                grad_variance_growth_table(runs),
+                _key_columns("task", "backend", "algo", "num_envs", "epochs")
+                + [
+                    ("from h", "h_min"),
+                    ("to h", "h_max"),
+                    ("raw growth [95% CI]", growth("var")),
+                    ("raw growth, pooled medians", "growth_factor"),
+                    ("NSR growth [95% CI]", growth("nsr")),
+                ],
+                heading="Growth from the shortest horizon (and from h 32) to the longest",
+                csv_suffix="_growth",
+                empty="no algorithm has runs at more than one horizon",
+            ),
+        ],
+        [
+            "raw: actor_grad_var, the trace of the K group gradients' covariance; it scales with the square of "
+            "the loss, so it also measures the loss's size (actor_reward_weight). NSR: actor_grad_nsr, that "
+            "variance over the bias-corrected squared norm of the mean gradient; unchanged by the loss's scale "
+            "(docs/gradient-statistics.md). Seeds' gmean: the geometric mean over training seeds of each seed's "
+            "median over epochs, with a 95% percentile bootstrap CI over seeds; inf when a seed's median NSR is "
+            "unresolved (inf). Pooled median, Q1, Q3: every finite epoch of every seed. Growth: the ratio of "
+            "the seeds' geometric means at the longest h to the shortest (and to h 32), with an unpaired "
+            "bootstrap CI; 'pooled medians' is the same ratio of pooled medians. A row pools only runs of one "
+            "setting (N envs, planned epochs). Runs from before the scale-free statistic have no NSR "
+            "(NSR: seeds counts the runs that logged it)."
+        ],
+        _run_commits(trained),
+    )
+
+
+def wall_time_document(runs: list[RunRecord]) -> Table:
+    """Wall time per run and its split."""
+    trained = [r for r in runs if r.epochs]
+    wall = wall_time_table(runs)
+    split_columns = [
+        (label, lambda r, s=stem: f"{fmt(r[s + '_min'])} ({fmt_pct(r[s + '_frac'])})") for stem, label, _ in TIME_PARTS
+    ]
+    return Table(
+        "wall_time",
+        "Wall time of every training run and where it goes",
+        rests_on_runs(trained),
+        [
+            Section(
+                wall,
+                _key_columns("run", "task", "backend", "algo", "horizon", "num_envs", "seed", "epochs")
+                + [("wall min", "wall_min"), ("s / epoch", "s_per_epoch")]
+                + split_columns,
+                empty="no run has metrics",
+            )
+        ],
+        [
+            "Minutes summed over epochs (share of the wall time in brackets). Actor update includes gradient "
+            "clipping, the variance estimate and SAPO's temperature step. Epochs logged before the update "
+            "was split count their whole update as 'update (not split)'. Other: the rest of the wall time "
+            "(rollout bookkeeping, logging, checkpoints). Evaluation is not part of the wall time."
+        ],
+        _run_commits(trained),
+    )
+
+
+def throughput_document(checks: list[CheckRecord]) -> Table:
+    """env-steps/s of the throughput checks."""
+    throughput_checks = [c for c in checks if c.kind == "throughput"]
+    return Table(
+        "throughput",
+        "Simulation throughput per backend and task",
+        f"Rests on {fmt_count(len(throughput_checks), 'throughput check file')}.",
+        [
+            Section(
+                throughput_table(checks),
+                _key_columns("task", "backend", "num_envs", "horizon", "windows", "file")
+                + [
+                    ("forward env-steps/s", "forward_steps_per_s"),
+                    (
+                        "forward+backward env-steps/s",
+                        lambda r: (
+                            fmt(r["forward_backward_steps_per_s"])
+                            + (" (estimated)" if r["forward_backward_estimated"] else "")
+                        ),
+                    ),
+                    ("bare engine forward", "bare_forward_steps_per_s"),
+                    ("bare engine forward+backward", "bare_engine_steps_per_s"),
+                    ("adapter/bare time, forward", "forward_overhead_ratio"),
+                    ("adapter/bare time, forward+backward", "overhead_ratio"),
+                    ("gradient cost factor", "gradient_cost_factor"),
+                ],
+                empty="no throughput check",
+            )
+        ],
+        [
+            "env-steps/s = envs x steps / seconds, best of the timed windows (harness/throughput.py). "
+            "adapter/bare: time through this project's adapter over the engine's own loop (1.0 = no overhead). "
+            "Estimated: `throughput --grad-cost-only` (finite-difference worlds timed, not a full step)."
+        ],
+        commit_counts(c.provenance.get("git_commit") for c in throughput_checks),
+    )
+
+
+def backends_document(runs: list[RunRecord]) -> Table:
+    """One algorithm, task and horizon on every backend side by side."""
+    trained = [r for r in runs if r.epochs]
+    wide = backends_table(runs)
+    last = "_" + BACKEND_MEASURES[-1]
+    backend_names = [c[: -len(last)] for c in wide.columns if c.endswith(last)]
+    by_backend: ColumnSpec = []
+    for b in backend_names:
+        by_backend += [
+            (f"{b} seeds", f"{b}_seeds"),
+            (f"{b} epochs", f"{b}_epochs"),
+            (f"{b} env steps", f"{b}_env_steps"),
+            (f"{b} IQM final", f"{b}_iqm_final"),
+            (f"{b} gain over untrained", f"{b}_gain_mean"),
+            (f"{b} updates skipped %", f"{b}_skipped_pct"),
+            (f"{b} median grad norm", f"{b}_grad_norm_median"),
+            (f"{b} wall min", f"{b}_wall_min_mean"),
+            (f"{b} s / epoch", f"{b}_s_per_epoch_mean"),
+        ]
+    return Table(
+        "backends",
+        "The same algorithm, task and horizon on every backend",
+        rests_on_runs(trained),
+        [
+            Section(
+                wide,
+                _key_columns("task", "algo", "horizon", "num_envs") + by_backend,
+                empty="no (task, algo, horizon) has runs on two or more backends",
+            )
+        ],
+        [
+            "Per backend: training seeds (runs), epochs and env steps per run, IQM of the final eval return "
+            "over the evaluated seeds, the mean gain of the final policy's eval return over the untrained "
+            "policy's (same protocol), the share of actor updates skipped as exploding or non-finite (all seeds' "
+            "epochs), the median over seeds of each run's median actor-gradient norm (before clipping), mean "
+            "wall minutes per run and mean seconds per epoch."
+        ],
+        _run_commits(trained),
+    )
+
+
+def sim_to_sim_document(runs: list[RunRecord]) -> Table:
+    """Policies evaluated on another backend than they trained on."""
+    s2s = sim_to_sim_table(runs)
+    s2s_runs = [r for r in runs if any(e["backend"] != e["trained_on"] for e in r.cross_evaluations.values())]
+    return Table(
+        "sim_to_sim",
+        "Sim-to-sim: policies evaluated on another backend than they trained on",
+        rests_on_runs(s2s_runs) + f" {fmt_count(len(s2s), 'cross-backend evaluation')}.",
+        [
+            Section(
+                s2s,
+                _key_columns("task", "algo", "horizon", "num_envs", "epochs", "seed", "trained_on", "evaluated_on")
+                + [
+                    ("return where trained", "own_return"),
+                    ("return on other", "other_return"),
+                    ("gap (other - own)", "gap"),
+                    ("own from", "own_source"),
+                    ("same protocol", "same_protocol"),
+                ],
+                empty="no run has an eval_on_*.json or sim2sim_on_*.json",
+            ),
+            Section(
+                sim_to_sim_mean_table(s2s),
+                _key_columns("task", "algo", "horizon", "num_envs", "epochs", "trained_on", "evaluated_on", "seeds")
+                + [
+                    ("mean return where trained", "own_return_mean"),
+                    ("mean return on other", "other_return_mean"),
+                    ("mean gap", "gap_mean"),
+                    ("gap std", "gap_std"),
+                ],
+                heading="Mean over seeds",
+                csv_suffix="_mean",
+                empty="no cross-backend evaluation",
+            ),
+        ],
+        [
+            "Return of the final policy (deterministic). Where trained: from the evaluation written with the "
+            "same protocol on the training backend when there is one (sim2sim_on_<training backend>.json), "
+            "else eval.json; 'same protocol' says whether both used the same eval seeds, envs and step cap."
+        ],
+        commit_counts(e.get("provenance", {}).get("git_commit") for r in runs for e in r.cross_evaluations.values()),
+    )
+
+
+def landscape_document(runs: list[RunRecord]) -> Table:
+    """Roughness of the h-step and TD-lambda actor losses."""
+    landscapes = [r for r in runs if r.landscape is not None]
+    return Table(
+        "landscape",
+        "Roughness of the actor-loss landscapes: h-step vs TD-lambda return",
+        rests_on_runs(landscapes, "runs with a landscape.json"),
+        [
+            Section(
+                landscape_table(runs),
+                _key_columns("task", "backend", "algo", "horizon", "seed", "grid", "span", "lambda")
+                + [
+                    ("roughness h-step", "roughness_h_step"),
+                    ("roughness TD-lambda", "roughness_td_lambda"),
+                    ("ratio", "ratio_h_step_over_td_lambda"),
+                ],
+                empty="no run has a landscape.json",
+            )
+        ],
+        [
+            "Roughness: total variation of the loss surface per grid line over its range (harness/landscape.py; "
+            "0.5 for a plane, >> 1 for a jagged surface). Ratio: h-step / TD-lambda (> 1: TD-lambda smoother)."
+        ],
+        commit_counts((r.landscape.get("provenance") or {}).get("git_commit") for r in landscapes),
+    )
+
+
+def checks_document(checks: list[CheckRecord]) -> Table:
+    """Every check file in one line."""
+    return Table(
+        "checks",
+        "Checks: gradients, cross-backend agreement, throughput",
+        f"Rests on {fmt_count(len(checks), 'check file')}.",
+        [
+            Section(
+                checks_table(checks),
+                [
+                    ("file", "file"),
+                    ("kind", "kind"),
+                    ("task", "task"),
+                    ("backend", "backend"),
+                    ("passed", lambda r: fmt_verdict(r["passed"])),
+                    ("key numbers", "summary"),
+                    ("made (UTC)", "created_utc"),
+                ],
+                empty="no check file",
+            )
+        ],
+        [
+            "passed: the check's own verdict where it gives one (gradcheck against its tolerance); crosschecks "
+            "report agreement numbers without a verdict (n/a)."
+        ],
+        commit_counts(c.provenance.get("git_commit") for c in checks),
+    )
+
+
+def build_tables(runs: list[RunRecord], checks: list[CheckRecord]) -> list[Table]:
+    """Every table of the report, computed (nothing written), in the order index.md lists them."""
+    return [
+        returns_document(runs),
+        grad_variance_document(runs),
+        wall_time_document(runs),
+        throughput_document(checks),
+        backends_document(runs),
+        sim_to_sim_document(runs),
+        landscape_document(runs),
+        checks_document(checks),
+    ]

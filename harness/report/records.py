@@ -1,0 +1,272 @@
+"""What the bench report reads: run directories (:class:`RunRecord`, :func:`load_run`) and check files
+(:class:`CheckRecord`, :func:`load_check`), the order tables list them in, and how runs are grouped into
+the rows of a table (:func:`by_group`)."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from harness.results import RunError, read_metrics
+
+ALGO_ORDER = ("shac", "shac-tdfixed", "shac-tdadpt", "sapo", "sapo-tdfixed", "sapo-tdadpt")
+VARIANT_SUFFIXES = ("-tdfixed", "-tdadpt")
+BACKEND_ORDER = ("newton", "mujoco_warp")
+SIM_TO_SIM_PREFIXES = ("eval_on_", "sim2sim_on_")  # `harness eval --backend` and the suite's sim-to-sim jobs
+
+
+# -- inputs ---------------------------------------------------------------------------------------
+@dataclass
+class RunRecord:
+    """What the report needs of one run directory."""
+
+    path: Path
+    task: str
+    backend: str
+    algo: str
+    horizon: int
+    seed: int
+    num_envs: int | None
+    metrics: pd.DataFrame
+    evaluation: dict | None  # eval.json, None when missing (an unfinished run)
+    cross_evaluations: dict[str, dict] = field(default_factory=dict)  # file name -> eval_on_*/sim2sim_on_* payload
+    landscape: dict | None = None
+    commit: str | None = None  # the commit the run was trained at (config.json's provenance)
+    planned_epochs: int | None = None  # config.json's epochs: what the run was asked for (``epochs``: what it did)
+
+    @property
+    def base(self) -> str:
+        return base_algo(self.algo)
+
+    @property
+    def group(self) -> tuple:
+        """What a table row pools seeds over, in table order: the same task, backend, setting (envs, planned
+        epochs), horizon and algorithm, so a 30-epoch h-sweep run never counts as a seed of a 100-epoch
+        headline run."""
+        return (self.task, self.backend, self.num_envs, self.planned_epochs, self.horizon, self.algo)
+
+    @property
+    def epochs(self) -> int:
+        """Epochs completed (rows of metrics.jsonl)."""
+        return len(self.metrics)
+
+    @property
+    def env_steps(self) -> int:
+        return int(self.metrics["env_steps"].iloc[-1]) if self.epochs and "env_steps" in self.metrics else 0
+
+    @property
+    def wall_s(self) -> float:
+        """Training wall time: the last row's cumulative ``wall_s`` (the sum of ``epoch_s`` where it is absent)."""
+        if not self.epochs:
+            return math.nan
+        wall = metric_column(self.metrics, "wall_s")
+        return (
+            float(wall.iloc[-1]) if np.isfinite(wall.iloc[-1]) else float(metric_column(self.metrics, "epoch_s").sum())
+        )
+
+    @property
+    def final_return(self) -> float | None:
+        return self.evaluation["final"]["mean_return"] if self.evaluation else None
+
+    @property
+    def initial_return(self) -> float | None:
+        return self.evaluation["initial"]["mean_return"] if self.evaluation else None
+
+
+def base_algo(algo: str) -> str:
+    """The algorithm a TD-lambda variant modifies: ``shac-tdadpt`` -> ``shac``; a base is its own base."""
+    for suffix in VARIANT_SUFFIXES:
+        if algo.endswith(suffix):
+            return algo[: -len(suffix)]
+    return algo
+
+
+def collect_runs(root: Path) -> list[Path]:
+    """Every directory under ``root`` (``root`` included) that holds a ``config.json``, sorted."""
+    return sorted({p.parent for p in Path(root).rglob("config.json") if p.is_file()})
+
+
+def say(stream, message: str) -> None:
+    """One line of the report's log on ``stream``; None: standard output as it is now (not as it was at import,
+    which a test's captured output may have replaced and closed since)."""
+    print(f"[bench report] {message}", file=stream or sys.stdout, flush=True)
+
+
+def _read_json(path: Path, stream=None) -> dict | None:
+    """A JSON object file, or None when it is missing or unreadable (said on ``stream``)."""
+    if not path.is_file():
+        return None
+    try:
+        payload = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        say(stream, f"ignored {path}: {exc}")
+        return None
+    if not isinstance(payload, dict):
+        say(stream, f"ignored {path}: not a JSON object")
+        return None
+    return payload
+
+
+def _has_returns(payload: dict | None) -> bool:
+    """An evaluation payload with a number for the initial and the final policy."""
+    try:
+        return all(isinstance(payload[k]["mean_return"], int | float) for k in ("initial", "final"))
+    except (KeyError, TypeError):
+        return False
+
+
+def metric_column(frame: pd.DataFrame, name: str) -> pd.Series:
+    """A metrics column as floats (null -> NaN); all NaN when the column is absent (older runs)."""
+    if name not in frame:
+        return pd.Series(np.nan, index=frame.index, dtype=float)
+    return pd.to_numeric(frame[name], errors="coerce").astype(float)
+
+
+def _task_label(task: str, config: dict) -> str:
+    """The task as tables name it: ``ant`` on the task's default physics preset, ``ant.rewarped`` on
+    another (as the suite names its run folders), so runs of two physics never pool as seeds of one row."""
+    import tasks
+    from simcore import UnknownNameError
+
+    preset = (config.get("physics_record") or {}).get("preset")
+    try:
+        default = tasks.task_class(task).default_preset
+    except UnknownNameError:  # a task this installation does not have: its name as recorded
+        return task
+    return task if preset in (None, default) else f"{task}.{preset}"
+
+
+def load_run(run_dir: Path, stream=None) -> RunRecord | None:
+    """Read one run directory; None (said on ``stream``) when its config.json is missing or unusable."""
+    run_dir = Path(run_dir)
+    config = _read_json(run_dir / "config.json", stream)
+    try:
+        algo_cfg = config["algo"]
+        task, backend, algo = str(config["task"]), str(config["backend"]), str(algo_cfg["algo"])
+        horizon, seed = int(algo_cfg.get("horizon", 0)), int(config.get("seed", 0))
+    except (KeyError, TypeError, ValueError):
+        say(stream, f"skipped {run_dir}: no usable config.json (task, backend, seed, algo.algo, algo.horizon)")
+        return None
+    try:
+        rows = read_metrics(run_dir / "metrics.jsonl")
+    except RunError as exc:
+        say(stream, f"{run_dir}: metrics ignored: {exc}")
+        rows = []
+    metrics = pd.DataFrame(rows)
+    if "epoch" in metrics:
+        # a resumed run may repeat the epochs after its last checkpoint: the later rows are the ones that count
+        metrics = metrics.drop_duplicates("epoch", keep="last").sort_values("epoch").reset_index(drop=True)
+    evaluation = _read_json(run_dir / "eval.json", stream)
+    if evaluation is not None and not _has_returns(evaluation):
+        say(stream, f"{run_dir}/eval.json has no initial/final mean_return: counted as not evaluated")
+        evaluation = None
+    cross = {}
+    for prefix in SIM_TO_SIM_PREFIXES:
+        for path in sorted(run_dir.glob(f"{prefix}*.json")):
+            payload = _read_json(path, stream)
+            if _has_returns(payload):
+                payload.setdefault("backend", path.stem[len(prefix) :])
+                payload.setdefault("trained_on", backend)
+                cross[path.name] = payload
+    landscape = _read_json(run_dir / "landscape.json", stream)
+    return RunRecord(
+        path=run_dir,
+        task=_task_label(task, config),
+        backend=backend,
+        algo=algo,
+        horizon=horizon,
+        seed=seed,
+        num_envs=algo_cfg.get("num_envs"),
+        metrics=metrics,
+        evaluation=evaluation,
+        cross_evaluations=cross,
+        landscape=landscape,
+        commit=(config.get("provenance") or {}).get("git_commit"),
+        planned_epochs=_int_or_none(config.get("epochs", algo_cfg.get("max_epochs"))),
+    )
+
+
+def _int_or_none(value) -> int | None:
+    try:
+        return int(value)
+    except (TypeError, ValueError):
+        return None
+
+
+@dataclass
+class CheckRecord:
+    """One check file: ``{"result": {...}, "provenance": {...}}`` (a crosscheck keeps its result at top level)."""
+
+    path: Path
+    kind: str
+    result: dict
+    provenance: dict
+
+
+def _check_kind(name: str, result: dict) -> str:
+    """gradcheck / throughput / crosscheck / forward-crosscheck from the result's keys, else the file's prefix."""
+    if "max_rel_error" in result or "action_rel_error" in result:
+        return "gradcheck"
+    if "forward_steps_per_s" in result:
+        return "throughput"
+    if "segments" in result:
+        return "crosscheck"
+    if "gaps" in result and "holds" in result:
+        return "parity"
+    if "control_lifted" in result:
+        return "contact-jacobians"
+    if "skip_threshold" in result and "summary" in result:
+        return "grad-paths"
+    if "com" in result and "pairs" in result:
+        return "forward-crosscheck"
+    return name.split("_", 1)[0] if "_" in name else "unknown"
+
+
+def load_check(path: Path, stream=None) -> CheckRecord | None:
+    payload = _read_json(Path(path), stream)
+    if payload is None:
+        if not Path(path).is_file():
+            say(stream, f"skipped check {path}: no such file")
+        return None
+    result = payload["result"] if isinstance(payload.get("result"), dict) else payload
+    result = {k: v for k, v in result.items() if k != "provenance"}
+    provenance = payload.get("provenance") if isinstance(payload.get("provenance"), dict) else {}
+    return CheckRecord(path=Path(path), kind=_check_kind(Path(path).name, result), result=result, provenance=provenance)
+
+
+# -- grouping helpers -----------------------------------------------------------------------------
+def rank(name: str) -> tuple[int, str]:
+    """Sort key of a name: algorithms in ALGO_ORDER, backends in BACKEND_ORDER (the reference engine
+    first), anything else (tasks, unknown names) alphabetically after them."""
+    known = ALGO_ORDER + BACKEND_ORDER
+    return (known.index(name), "") if name in known else (len(known), name)
+
+
+def group_runs(runs: Iterable[RunRecord], key: Callable[[RunRecord], tuple]) -> dict[tuple, list[RunRecord]]:
+    """Runs grouped by ``key``, groups in a stable order (algorithms in ALGO_ORDER), members by seed."""
+    groups: dict[tuple, list[RunRecord]] = {}
+    for run in runs:
+        groups.setdefault(key(run), []).append(run)
+    # element-wise: numbers (horizons, seeds) by value, names by rank
+    ordered = sorted(groups, key=lambda k: tuple((x, "") if isinstance(x, int) else rank(str(x)) for x in k))
+    return {k: sorted(groups[k], key=lambda r: (r.seed, str(r.path))) for k in ordered}
+
+
+def by_group(runs: Iterable[RunRecord]) -> dict[tuple, list[RunRecord]]:
+    """Runs by :attr:`RunRecord.group`, ordered for tables."""
+    return group_runs(runs, lambda r: r.group)
+
+
+def value_or_range(values: Iterable) -> int | str | None:
+    """The one value all members share, else ``"min-max"``."""
+    distinct = sorted(set(values))
+    if not distinct:
+        return None
+    return distinct[0] if len(distinct) == 1 else f"{distinct[0]}-{distinct[-1]}"

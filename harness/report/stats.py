@@ -1,0 +1,159 @@
+"""Every statistic of the harness's reports, in one place: the bench report (``harness/report/tables.py``)
+and the ``report`` verb (``harness/report/compare.py``) both compute their numbers here.
+
+Interquartile mean (IQM): ``scipy.stats.trim_mean(x, 0.25)``, the definition of rliable (Agarwal et al.
+2021). Its 95% CI is scipy's percentile bootstrap over training seeds with 2000 resamples. rliable's
+stratified bootstrap resamples seeds within each task; every row of a table is one task and one backend,
+i.e. one stratum, so the stratified bootstrap is the plain bootstrap over seeds (rliable 1.2.0 itself does
+not import with this project's pandas 3.1, hence scipy's implementation). Every CI uses a fresh
+``np.random.default_rng(0)``, so a row's CI depends on its own data only and the tables are reproducible.
+
+Also here: the difference of two IQMs and the ratio of two geometric means with two-sample (unpaired)
+bootstrap CIs, the geometric mean with its CI, the median over a run's logged epochs, the sample std, and
+the statistical power of a two-sample comparison (the smallest detectable difference, the seeds needed).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+
+import numpy as np
+from scipy import stats
+
+IQM_TRIM = 0.25  # cut 25% at each end: the mean of the middle half (rliable's IQM)
+BOOTSTRAP_RESAMPLES = 2000
+CONFIDENCE = 0.95
+BOOTSTRAP_SEED = 0
+
+
+# -- statistics -----------------------------------------------------------------------------------
+def iqm(values: Iterable[float]) -> float:
+    """Interquartile mean: the mean of the middle half (``scipy.stats.trim_mean(x, 0.25)``, as rliable)."""
+    x = np.asarray(list(values), dtype=float)
+    return float(stats.trim_mean(x, IQM_TRIM)) if x.size else math.nan
+
+
+def _iqm_along(sample: np.ndarray, axis: int = -1) -> np.ndarray:
+    return stats.trim_mean(sample, IQM_TRIM, axis=axis)
+
+
+def _percentile_ci(samples: tuple[np.ndarray, ...], statistic) -> tuple[float, float]:
+    """The 95% percentile-bootstrap interval of ``statistic`` (vectorised, ``axis``) over ``samples``,
+    each resampled on its own (unpaired), with the report's fixed resamples and seed."""
+    ci = stats.bootstrap(
+        samples,
+        statistic,
+        vectorized=True,
+        paired=False,
+        n_resamples=BOOTSTRAP_RESAMPLES,
+        confidence_level=CONFIDENCE,
+        method="percentile",
+        rng=np.random.default_rng(BOOTSTRAP_SEED),
+    ).confidence_interval
+    return float(ci.low), float(ci.high)
+
+
+def iqm_with_ci(values: Iterable[float]) -> tuple[float, float, float]:
+    """(IQM, CI low, CI high): 95% percentile bootstrap over the values (seeds); NaN bounds under 2 values."""
+    x = np.asarray(list(values), dtype=float)
+    point = iqm(x)
+    if x.size < 2:
+        return point, math.nan, math.nan
+    return point, *_percentile_ci((x,), _iqm_along)
+
+
+def iqm_difference_with_ci(variant: Iterable[float], base: Iterable[float]) -> tuple[float, float, float]:
+    """IQM(variant) - IQM(base) with a 95% CI from a two-sample (unpaired) percentile bootstrap.
+
+    Unpaired: seed s of a variant and seed s of its base share nothing but the number, so each sample is
+    resampled on its own. NaN bounds when either side has fewer than 2 seeds.
+    """
+    v, b = np.asarray(list(variant), dtype=float), np.asarray(list(base), dtype=float)
+    point = iqm(v) - iqm(b)
+    if v.size < 2 or b.size < 2:
+        return point, math.nan, math.nan
+    return point, *_percentile_ci((v, b), lambda x, y, axis=-1: _iqm_along(x, axis) - _iqm_along(y, axis))
+
+
+def sample_std(values: Iterable[float]) -> float:
+    """The sample standard deviation (n - 1); NaN under 2 values."""
+    x = np.asarray(values if isinstance(values, np.ndarray) else list(values), dtype=float)
+    return float(np.std(x, ddof=1)) if x.size > 1 else math.nan
+
+
+def epoch_median(values: Iterable[float | None]) -> float:
+    """The median over the epochs that logged a value: NaN and None (a skipped update, a run from before
+    the statistic) are dropped, +inf (an unresolved noise-to-signal ratio) is kept; NaN when none is left."""
+    x = np.asarray([math.nan if v is None else v for v in values], dtype=float)
+    x = x[~np.isnan(x)]
+    return float(np.median(x)) if x.size else math.nan
+
+
+# -- statistical power ------------------------------------------------------------------------------
+POWER = 0.8
+ALPHA = 0.05
+#: relative improvements over the base algorithm the paper reports (Ant +25-50%, Go2 about +100%)
+EFFECTS = (0.25, 0.5, 1.0)
+
+
+def pooled_std(samples: Iterable[np.ndarray]) -> float:
+    """The within-sample standard deviation pooled over samples (each weighted by its n - 1)."""
+    samples = [np.asarray(x, dtype=float) for x in samples]
+    dof = sum(x.size - 1 for x in samples if x.size > 1)
+    if dof < 1:
+        return math.nan
+    return math.sqrt(sum(((x - x.mean()) ** 2).sum() for x in samples if x.size > 1) / dof)
+
+
+def minimum_detectable_difference(spread: float, n1: int, n2: int) -> float:
+    """The smallest true difference of means a two-sided two-sample t-test (level ALPHA) detects with
+    probability POWER, for seeds of standard deviation ``spread``: (t_(1-a/2) + t_power) s sqrt(1/n1 + 1/n2)
+    at n1 + n2 - 2 degrees of freedom (the usual normal-shift approximation of the t-test's power)."""
+    dof = n1 + n2 - 2
+    if dof < 1 or not math.isfinite(spread):
+        return math.nan
+    t = stats.t.ppf(1 - ALPHA / 2, dof) + stats.t.ppf(POWER, dof)
+    return float(t * spread * math.sqrt(1 / n1 + 1 / n2))
+
+
+def seeds_needed(spread: float, difference: float, limit: int = 10_000) -> int | None:
+    """Seeds per algorithm for :func:`minimum_detectable_difference` to reach ``difference``; None when
+    the spread is unknown or more than ``limit`` would be needed."""
+    if not (math.isfinite(spread) and math.isfinite(difference) and difference > 0):
+        return None
+    for n in range(2, limit + 1):
+        if minimum_detectable_difference(spread, n, n) <= difference:
+            return n
+    return None
+
+
+def geometric_mean_with_ci(values: Iterable[float]) -> tuple[float, float, float]:
+    """(geometric mean, CI low, CI high): 95% percentile bootstrap of the mean of log values over seeds.
+    A zero or +inf value makes the mean 0 or +inf (a statistic some seed did not resolve); NaN bounds
+    under 2 values."""
+    x = np.asarray(list(values), dtype=float)
+    if not x.size:
+        return math.nan, math.nan, math.nan
+    with np.errstate(divide="ignore"):
+        logs = np.log(x)
+    point = float(np.exp(logs.mean()))
+    if x.size < 2 or not np.isfinite(logs).all():
+        return point, math.nan, math.nan
+    low, high = _percentile_ci((logs,), np.mean)
+    return point, math.exp(low), math.exp(high)
+
+
+def ratio_of_geometric_means_with_ci(high: Iterable[float], low: Iterable[float]) -> tuple[float, float, float]:
+    """gmean(high) / gmean(low) with a 95% CI from a two-sample (unpaired) percentile bootstrap of the
+    difference of mean logs; NaN bounds when a side has fewer than 2 finite positive values."""
+    h, lo = np.asarray(list(high), dtype=float), np.asarray(list(low), dtype=float)
+    if not (h.size and lo.size):
+        return math.nan, math.nan, math.nan
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lh, ll = np.log(h), np.log(lo)
+        point = float(np.exp(lh.mean() - ll.mean()))
+    if h.size < 2 or lo.size < 2 or not (np.isfinite(lh).all() and np.isfinite(ll).all()):
+        return point, math.nan, math.nan
+    low, high = _percentile_ci((lh, ll), lambda x, y, axis=-1: np.mean(x, axis=axis) - np.mean(y, axis=axis))
+    return point, math.exp(low), math.exp(high)

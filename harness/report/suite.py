@@ -1,0 +1,99 @@
+"""The bench report's entry point: :func:`write_bench_report` reads the suite's runs and checks and writes
+every table, plot and ``index.md`` into one folder (what each holds: :mod:`harness.report`)."""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Callable
+from pathlib import Path
+
+from harness.report.documents import Table, build_tables, header_lines, write_table
+from harness.report.plots import (
+    PLOT_DESCRIPTIONS,
+    NoPlotData,
+    plot_grad_variance,
+    plot_lambda_alpha,
+    plot_landscapes,
+    plot_learning_curves,
+    plot_throughput,
+    plot_wall_time,
+    pyplot,
+)
+from harness.report.records import by_group, load_check, load_run, say
+from harness.results import atomic_write_text
+
+
+def write_bench_report(runs: list[Path], checks: list[Path], out_dir: Path, header: dict, stream=None) -> list[Path]:
+    """Write every table (Markdown, CSV, provenance JSON) and plot of the suite into ``out_dir``.
+
+    ``runs``: run directories (config.json, metrics.jsonl, optional eval.json, eval_on_*.json,
+    sim2sim_on_*.json, landscape.json); ``checks``: check JSON files; ``header``: ``provenance()`` plus
+    ``profile``. Returns the files written; skipped plots are printed on ``stream`` (None: standard output) and
+    listed in index.md.
+    """
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    unique_runs = list(dict.fromkeys(Path(r).resolve() for r in runs))
+    records = [rec for rec in (load_run(r, stream) for r in unique_runs) if rec is not None]
+    check_records = [c for c in (load_check(Path(p), stream) for p in dict.fromkeys(checks)) if c is not None]
+    for key, members in by_group(records).items():
+        seeds = Counter(r.seed for r in members)
+        repeated = sorted(s for s, n in seeds.items() if n > 1)
+        if repeated:
+            say(stream, f"group {key} has seed(s) {repeated} more than once (different run directories): all counted")
+
+    written: list[Path] = []
+    tables = build_tables(records, check_records)
+    main = {table.name: table.sections[0].frame for table in tables}  # the plots draw from the tables' numbers
+    for table in tables:
+        written += write_table(table, out_dir, header)
+
+    plots: list[tuple[str, Callable[[Path], Path]]] = [
+        ("learning_curves_steps.png", lambda p: plot_learning_curves(records, "env_steps", p)),
+        ("learning_curves_wall.png", lambda p: plot_learning_curves(records, "wall_min", p)),
+        ("grad_variance_vs_h.png", lambda p: plot_grad_variance(main["grad_variance_vs_h"], p)),
+        ("lambda_alpha.png", lambda p: plot_lambda_alpha(records, p)),
+        ("wall_time.png", lambda p: plot_wall_time(main["wall_time"], p)),
+        ("throughput.png", lambda p: plot_throughput(main["throughput"], p)),
+    ]
+    plotted, skipped = [], []
+    for name, draw in plots:
+        path = out_dir / name
+        try:
+            plotted.append(draw(path))
+        except NoPlotData as reason:
+            skipped.append(f"{name}: {reason}")
+            path.unlink(missing_ok=True)  # a figure from an earlier report would pass for this one
+        except Exception as exc:  # a plot must not cost the tables of a finished suite
+            skipped.append(f"{name}: failed: {type(exc).__name__}: {exc}")
+            path.unlink(missing_ok=True)
+            pyplot()[0].close("all")  # the half-drawn figure
+    landscape_pngs, landscape_skipped = plot_landscapes(records, out_dir)
+    plotted += landscape_pngs
+    skipped += landscape_skipped
+    for line in skipped:
+        say(stream, f"skipped plot {line}")
+    written += plotted
+    written.append(write_index(tables, plotted, skipped, out_dir, header))
+    return written
+
+
+def write_index(tables: list[Table], plotted: list[Path], skipped: list[str], out_dir: Path, header: dict) -> Path:
+    """``index.md``: what the report holds, and which plots were skipped and why."""
+    lines = ["# Benchmark report", "", *header_lines(header), "", "## Tables", ""]
+    for table in tables:
+        csvs = ", ".join(f"`{table.name}{s.csv_suffix}.csv`" for s in table.sections)
+        lines.append(f"- `{table.name}.md` ({csvs}): {table.title}. {table.rests_on}")
+    lines += [
+        "",
+        "CSV provenance: every `NAME.csv` has a `NAME.provenance.json` beside it "
+        "(command, commit, time, packages, machine, what the numbers rest on).",
+    ]
+    lines += ["", "## Plots", ""]
+    landscape = "actor-loss landscape, h-step vs TD-lambda (harness.landscape.plot_landscape)"
+    lines += [f"- `{p.name}`: {PLOT_DESCRIPTIONS.get(p.name, landscape)}" for p in plotted]
+    if not plotted:
+        lines.append("- none")
+    if skipped:
+        lines += ["", "Skipped:", "", *[f"- {line}" for line in skipped]]
+    return atomic_write_text(out_dir / "index.md", "\n".join(lines) + "\n")

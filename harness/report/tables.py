@@ -1,0 +1,608 @@
+"""The bench report's tables as pure functions of the records (:mod:`harness.report.records`): one
+``pandas.DataFrame`` per table, every number from :mod:`harness.report.stats`. Nothing here writes a file;
+:mod:`harness.report.documents` turns the frames into Markdown and CSV."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+
+from harness.report.formatting import fmt, fmt_pct
+from harness.report.records import (
+    SIM_TO_SIM_PREFIXES,
+    CheckRecord,
+    RunRecord,
+    base_algo,
+    by_group,
+    group_runs,
+    metric_column,
+    rank,
+    value_or_range,
+)
+from harness.report.stats import (
+    EFFECTS,
+    epoch_median,
+    geometric_mean_with_ci,
+    iqm,
+    iqm_difference_with_ci,
+    iqm_with_ci,
+    minimum_detectable_difference,
+    pooled_std,
+    ratio_of_geometric_means_with_ci,
+    sample_std,
+    seeds_needed,
+)
+
+TIME_PARTS = (  # (column stem, label, metrics field)
+    ("sim_forward", "sim forward", "sim_forward_s"),
+    ("backward", "backward", "backward_s"),
+    ("actor_update", "actor update", "actor_update_s"),
+    ("critic_update", "critic update", "critic_update_s"),
+    ("lambda_update", "lambda update", "lambda_update_s"),
+    ("update_unsplit", "update (not split)", "update_s"),
+    ("other", "other", None),
+)
+
+
+# -- tables (pure functions of the records) -------------------------------------------------------
+def returns_table(runs: list[RunRecord]) -> pd.DataFrame:
+    """Final evaluation return per (task, backend, num_envs, planned epochs, horizon, algo) over training seeds;
+    runs without eval.json are left out. ``improvement_*``: IQM(algo) - IQM(base algo) in the same group but
+    for the algorithm."""
+    groups = by_group(r for r in runs if r.evaluation is not None)
+    finals = {key: np.array([r.final_return for r in members], dtype=float) for key, members in groups.items()}
+    rows = []
+    for (task, backend, num_envs, planned, horizon, algo), members in groups.items():
+        final = finals[(task, backend, num_envs, planned, horizon, algo)]
+        point, low, high = iqm_with_ci(final)
+        base = base_algo(algo)
+        base_final = finals.get((task, backend, num_envs, planned, horizon, base)) if base != algo else None
+        gain = iqm_difference_with_ci(final, base_final) if base_final is not None else (math.nan,) * 3
+        if base_final is not None and final.size + base_final.size > 2:
+            spread = pooled_std([final, base_final])
+            mde = minimum_detectable_difference(spread, final.size, base_final.size)
+        else:
+            mde = math.nan
+        rows.append(
+            {
+                "task": task,
+                "backend": backend,
+                "algo": algo,
+                "horizon": horizon,
+                "num_envs": num_envs,
+                "seeds": len(members),
+                "epochs": value_or_range(r.epochs for r in members),
+                "env_steps": value_or_range(r.env_steps for r in members),
+                "eval_seeds": value_or_range(r.evaluation.get("seeds") for r in members),
+                "eval_num_envs": value_or_range(r.evaluation.get("num_envs") for r in members),
+                "iqm_final": point,
+                "iqm_ci_low": low,
+                "iqm_ci_high": high,
+                "mean_final": float(final.mean()),
+                "std_final": sample_std(final),
+                "mean_initial": float(np.mean([r.initial_return for r in members])),
+                "base": base if base != algo else None,
+                "base_seeds": len(base_final) if base_final is not None else None,
+                "improvement_iqm": gain[0],
+                "improvement_ci_low": gain[1],
+                "improvement_ci_high": gain[2],
+                "mde_80": mde,
+            }
+        )
+    return pd.DataFrame(rows, columns=_RETURNS_COLUMNS)
+
+
+_RETURNS_COLUMNS = [
+    "task",
+    "backend",
+    "algo",
+    "horizon",
+    "num_envs",
+    "seeds",
+    "epochs",
+    "env_steps",
+    "eval_seeds",
+    "eval_num_envs",
+    "iqm_final",
+    "iqm_ci_low",
+    "iqm_ci_high",
+    "mean_final",
+    "std_final",
+    "mean_initial",
+    "base",
+    "base_seeds",
+    "improvement_iqm",
+    "improvement_ci_low",
+    "improvement_ci_high",
+    "mde_80",
+]
+
+
+def power_table(runs: list[RunRecord]) -> pd.DataFrame:
+    """Per (task, backend, num_envs, planned epochs, horizon) with evaluated runs: the between-seed spread
+    of the final return pooled over its algorithms, the base algorithms' mean return, and the seeds per
+    algorithm a two-sample test needs to detect each relative improvement in EFFECTS at POWER."""
+    groups = by_group(r for r in runs if r.evaluation is not None)
+    settings: dict[tuple, dict[str, np.ndarray]] = {}
+    for (task, backend, num_envs, planned, horizon, algo), members in groups.items():
+        finals = np.array([r.final_return for r in members], dtype=float)
+        settings.setdefault((task, backend, num_envs, planned, horizon), {})[algo] = finals
+    rows = []
+    for (task, backend, num_envs, planned, horizon), by_algo in settings.items():
+        spread = pooled_std(by_algo.values())
+        bases = [x for a, x in by_algo.items() if base_algo(a) == a]
+        base_mean = float(np.mean(np.concatenate(bases))) if bases else math.nan
+        row = {"task": task, "backend": backend, "num_envs": num_envs, "epochs": planned, "horizon": horizon}
+        row |= {"algos": len(by_algo), "seeds": value_or_range(x.size for x in by_algo.values())}
+        row |= {"pooled_std": spread, "base_mean": base_mean}
+        row["cv"] = spread / abs(base_mean) if base_mean else math.nan
+        for effect in EFFECTS:
+            row[f"seeds_for_{round(effect * 100)}pct"] = seeds_needed(spread, effect * abs(base_mean))
+        rows.append(row)
+    columns = ["task", "backend", "num_envs", "epochs", "horizon", "algos", "seeds", "pooled_std", "base_mean", "cv"]
+    columns += [f"seeds_for_{round(e * 100)}pct" for e in EFFECTS]
+    return pd.DataFrame(rows, columns=columns)
+
+
+#: the two gradient statistics every variance table and plot shows (algorithms/grad_variance.py):
+#: (metric logged per epoch, column stem, label)
+GRAD_STATISTICS = (
+    ("actor_grad_var", "var", "raw variance Var_K (scales with the loss squared)"),
+    ("actor_grad_nsr", "nsr", "noise-to-signal Var_K / S (scale-free)"),
+)
+
+
+def seed_medians(members: list[RunRecord], metric: str) -> np.ndarray:
+    """Each run's median of ``metric`` over its epochs (NaN epochs, skipped updates, dropped; +inf kept);
+    runs that never logged it (from before the statistic existed) are left out."""
+    medians = []
+    for run in members:
+        column = metric_column(run.metrics, metric).to_numpy(dtype=float)
+        if not np.isnan(column).all():
+            medians.append(epoch_median(column))
+    return np.asarray(medians, dtype=float)
+
+
+def grad_variance_table(runs: list[RunRecord]) -> pd.DataFrame:
+    """Per group and gradient statistic (GRAD_STATISTICS): the median and quartiles of every epoch of
+    every seed pooled (finite values), and the geometric mean over seeds of each seed's median with its
+    95% bootstrap CI (``{stem}_seeds``: how many seeds logged the statistic)."""
+    rows = []
+    for (task, backend, num_envs, planned, horizon, algo), members in by_group(r for r in runs if r.epochs).items():
+        row = {
+            "task": task,
+            "backend": backend,
+            "algo": algo,
+            "num_envs": num_envs,
+            "epochs": planned,
+            "horizon": horizon,
+            "seeds": len(members),
+        }
+        for metric, stem, _ in GRAD_STATISTICS:
+            pooled = np.concatenate([metric_column(r.metrics, metric).to_numpy(dtype=float) for r in members])
+            pooled = pooled[np.isfinite(pooled)]
+            q1, median, q3 = np.percentile(pooled, [25, 50, 75]) if pooled.size else (math.nan,) * 3
+            per_seed = seed_medians(members, metric)
+            gmean, low, high = geometric_mean_with_ci(per_seed)
+            prefix = "" if stem == "var" else f"{stem}_"
+            row |= {f"{prefix}values": int(pooled.size), f"{prefix}median": float(median)}
+            row |= {f"{prefix}q1": float(q1), f"{prefix}q3": float(q3)}
+            row |= {f"{stem}_seeds": int(per_seed.size), f"{stem}_gmean": gmean}
+            row |= {f"{stem}_ci_low": low, f"{stem}_ci_high": high}
+        rows.append(row)
+    columns = ["task", "backend", "algo", "num_envs", "epochs", "horizon", "seeds"]
+    for _, stem, _ in GRAD_STATISTICS:
+        prefix = "" if stem == "var" else f"{stem}_"
+        columns += [f"{prefix}{c}" for c in ("values", "median", "q1", "q3")]
+        columns += [f"{stem}_{c}" for c in ("seeds", "gmean", "ci_low", "ci_high")]
+    return pd.DataFrame(rows, columns=columns)
+
+
+def grad_variance_growth_table(runs: list[RunRecord]) -> pd.DataFrame:
+    """Per (task, backend, algo, num_envs, planned epochs) swept over h: the growth of each statistic from
+    the shortest h (and from h 32, when the sweep holds it strictly inside) to the longest. ``growth_factor``
+    is the ratio of the pooled medians; ``{stem}_growth`` the ratio of the geometric means of the seeds'
+    medians, with a 95% CI (unpaired bootstrap over seeds). Runs of another setting never stand in."""
+    groups = by_group(r for r in runs if r.epochs)
+    settings: dict[tuple, dict[int, list[RunRecord]]] = {}
+    for (task, backend, num_envs, planned, horizon, algo), members in groups.items():
+        settings.setdefault((task, backend, algo, num_envs, planned), {})[int(horizon)] = members
+    rows = []
+    for (task, backend, algo, num_envs, planned), by_h in settings.items():
+        horizons = sorted(by_h)
+        if len(horizons) < 2:
+            continue
+        top = horizons[-1]
+        bases = [horizons[0]] + ([32] if 32 in horizons[1:-1] else [])
+        for base in bases:
+            row = {"task": task, "backend": backend, "algo": algo, "num_envs": num_envs, "epochs": planned}
+            row |= {"h_min": base, "h_max": top}
+            for metric, stem, _ in GRAD_STATISTICS:
+                lo = np.concatenate([metric_column(r.metrics, metric).to_numpy(dtype=float) for r in by_h[base]])
+                hi = np.concatenate([metric_column(r.metrics, metric).to_numpy(dtype=float) for r in by_h[top]])
+                lo, hi = lo[np.isfinite(lo)], hi[np.isfinite(hi)]
+                med_lo = float(np.median(lo)) if lo.size else math.nan
+                med_hi = float(np.median(hi)) if hi.size else math.nan
+                if stem == "var":
+                    row |= {"median_h_min": med_lo, "median_h_max": med_hi}
+                    row["growth_factor"] = med_hi / med_lo if med_lo else math.nan
+                point, low, high = ratio_of_geometric_means_with_ci(
+                    seed_medians(by_h[top], metric), seed_medians(by_h[base], metric)
+                )
+                row |= {f"{stem}_growth": point, f"{stem}_growth_ci_low": low, f"{stem}_growth_ci_high": high}
+            rows.append(row)
+    columns = [
+        *("task", "backend", "algo", "num_envs", "epochs"),
+        *("h_min", "h_max", "median_h_min", "median_h_max", "growth_factor"),
+    ]
+    columns += [f"{stem}_growth{c}" for _, stem, _ in GRAD_STATISTICS for c in ("", "_ci_low", "_ci_high")]
+    return pd.DataFrame(rows, columns=columns)
+
+
+def time_split(run: RunRecord) -> dict[str, float]:
+    """Seconds of each TIME_PARTS stem summed over the run's epochs.
+
+    Epochs that logged actor/critic/lambda update times count them; epochs that did not (runs from before
+    the split was logged) count their whole ``update_s`` as ``update_unsplit``. ``other`` is the rest of
+    the wall time (rollout bookkeeping, logging, checkpoints).
+    """
+    m = run.metrics
+    split = metric_column(m, "actor_update_s").notna()
+    seconds = {
+        "sim_forward": float(metric_column(m, "sim_forward_s").sum()),
+        "backward": float(metric_column(m, "backward_s").sum()),
+        "actor_update": float(metric_column(m, "actor_update_s")[split].sum()),
+        "critic_update": float(metric_column(m, "critic_update_s")[split].sum()),
+        "lambda_update": float(metric_column(m, "lambda_update_s")[split].sum()),
+        "update_unsplit": float(metric_column(m, "update_s")[~split].sum()),
+    }
+    seconds["other"] = max(run.wall_s - sum(seconds.values()), 0.0) if np.isfinite(run.wall_s) else math.nan
+    return seconds
+
+
+def wall_time_table(runs: list[RunRecord]) -> pd.DataFrame:
+    """Per run: wall minutes, seconds per epoch and the split of the wall time, in minutes and fractions."""
+    rows = []
+    for members in by_group(r for r in runs if r.epochs).values():
+        for run in members:
+            seconds = time_split(run)
+            row = {
+                "run": run.path.name,
+                "task": run.task,
+                "backend": run.backend,
+                "algo": run.algo,
+                "horizon": run.horizon,
+                "num_envs": run.num_envs,
+                "seed": run.seed,
+                "epochs": run.epochs,
+                "env_steps": run.env_steps,
+                "wall_min": run.wall_s / 60.0,
+                "s_per_epoch": run.wall_s / run.epochs,
+            }
+            row.update({f"{stem}_min": seconds[stem] / 60.0 for stem, _, _ in TIME_PARTS})
+            row.update(
+                {f"{stem}_frac": seconds[stem] / run.wall_s if run.wall_s else math.nan for stem, _, _ in TIME_PARTS}
+            )
+            rows.append(row)
+    columns = [
+        *("run", "task", "backend", "algo", "horizon", "num_envs", "seed"),
+        *("epochs", "env_steps", "wall_min", "s_per_epoch"),
+    ]
+    columns += [f"{stem}_{unit}" for unit in ("min", "frac") for stem, _, _ in TIME_PARTS]
+    return pd.DataFrame(rows, columns=columns)
+
+
+def throughput_table(checks: list[CheckRecord]) -> pd.DataFrame:
+    """Per throughput check file: env-steps/s forward, forward+backward, and of the bare engine."""
+    rows = []
+    for check in checks:
+        if check.kind != "throughput":
+            continue
+        r = check.result
+        measured = r.get("forward_backward_steps_per_s")
+        estimated = r.get("forward_backward_steps_per_s_estimated")  # `throughput --grad-cost-only`
+        rows.append(
+            {
+                "file": check.path.name,
+                "backend": r.get("backend"),
+                "task": r.get("task"),
+                "num_envs": r.get("num_envs"),
+                "horizon": r.get("horizon"),
+                "windows": r.get("windows"),
+                "forward_steps_per_s": r.get("forward_steps_per_s"),
+                "forward_backward_steps_per_s": measured if measured is not None else estimated,
+                "forward_backward_estimated": measured is None and estimated is not None,
+                "bare_forward_steps_per_s": r.get("bare_forward_steps_per_s"),
+                "bare_engine_steps_per_s": r.get("bare_engine_steps_per_s"),
+                "forward_overhead_ratio": r.get("forward_overhead_ratio"),
+                "overhead_ratio": r.get("overhead_ratio"),
+                "gradient_cost_factor": r.get("gradient_cost_factor"),
+            }
+        )
+    columns = [
+        "file",
+        "backend",
+        "task",
+        "num_envs",
+        "horizon",
+        "windows",
+        "forward_steps_per_s",
+        "forward_backward_steps_per_s",
+        "forward_backward_estimated",
+        "bare_forward_steps_per_s",
+        "bare_engine_steps_per_s",
+        "forward_overhead_ratio",
+        "overhead_ratio",
+        "gradient_cost_factor",
+    ]
+    rows.sort(key=lambda r: (rank(str(r["task"])), rank(str(r["backend"])), r["num_envs"] or 0, r["file"]))
+    return pd.DataFrame(rows, columns=columns)
+
+
+BACKEND_MEASURES = (
+    "seeds",
+    "epochs",
+    "env_steps",
+    "iqm_final",
+    "gain_mean",
+    "skipped_pct",
+    "grad_norm_median",
+    "wall_min_mean",
+    "s_per_epoch_mean",
+)
+
+
+def _skipped_fraction(run: RunRecord) -> float:
+    """The fraction of a run's actor updates skipped as exploding or non-finite."""
+    column = metric_column(run.metrics, "actor_update_skipped")
+    return float(column.astype(float).mean()) if len(column) and column.notna().all() else math.nan
+
+
+def backends_table(runs: list[RunRecord]) -> pd.DataFrame:
+    """One row per (task, algo, horizon, num_envs, planned epochs) trained on at least 2 backends, columns
+    ``BACKEND_MEASURE`` per backend.
+
+    ``seeds`` counts every run (wall time is known without an evaluation); ``iqm_final`` rests on the
+    evaluated ones.
+    """
+    long_rows = []
+    for (task, num_envs, planned, horizon, algo, backend), members in group_runs(
+        (r for r in runs if r.epochs), lambda r: (r.task, r.num_envs, r.planned_epochs, r.horizon, r.algo, r.backend)
+    ).items():
+        evaluated = [r.final_return for r in members if r.evaluation is not None]
+        gains = [r.final_return - r.initial_return for r in members if r.evaluation is not None]
+        norms = seed_medians(members, "actor_grad_norm")
+        long_rows.append(
+            {
+                "task": task,
+                "algo": algo,
+                "horizon": horizon,
+                "num_envs": num_envs,
+                "planned_epochs": planned,
+                "backend": backend,
+                "seeds": len(members),
+                "epochs": value_or_range(r.epochs for r in members),
+                "env_steps": value_or_range(r.env_steps for r in members),
+                "iqm_final": iqm(evaluated),
+                "gain_mean": float(np.mean(gains)) if gains else math.nan,
+                "skipped_pct": 100.0 * float(np.nanmean([_skipped_fraction(r) for r in members])),
+                "grad_norm_median": float(np.median(norms)) if norms.size else math.nan,
+                "wall_min_mean": float(np.mean([r.wall_s for r in members])) / 60.0,
+                "s_per_epoch_mean": float(np.mean([r.wall_s / r.epochs for r in members])),
+            }
+        )
+    keys = ["task", "algo", "horizon", "num_envs", "planned_epochs"]
+    long = pd.DataFrame(long_rows, columns=[*keys, "backend", *BACKEND_MEASURES])
+    backends = sorted(long["backend"].unique(), key=rank)
+    rows = []
+    for (task, algo, horizon, num_envs, _planned), sub in long.groupby(keys, sort=False, dropna=False):
+        if sub["backend"].nunique() < 2:
+            continue
+        row = {"task": task, "algo": algo, "horizon": horizon, "num_envs": num_envs}
+        for backend in backends:
+            match = sub[sub["backend"] == backend]
+            for measure in BACKEND_MEASURES:
+                row[f"{backend}_{measure}"] = match[measure].iloc[0] if len(match) else None
+        rows.append(row)
+    columns = ["task", "algo", "horizon", "num_envs"] + [f"{b}_{m}" for b in backends for m in BACKEND_MEASURES]
+    return pd.DataFrame(rows, columns=columns)
+
+
+def _protocol(payload: dict) -> tuple:
+    return tuple(payload.get(k) for k in ("seeds", "num_envs", "max_steps"))
+
+
+def sim_to_sim_table(runs: list[RunRecord]) -> pd.DataFrame:
+    """Per run and other backend: the final policy's return where it trained and where it was evaluated.
+
+    The return on the training backend comes from the file written with the same protocol where there is
+    one (the suite writes ``sim2sim_on_<training backend>.json`` beside ``sim2sim_on_<other>.json``: same
+    eval seeds, envs and step cap), else from eval.json's final policy; ``own_source`` names it and
+    ``same_protocol`` says whether the two evaluations used the same seeds, envs and step cap.
+    """
+    rows = []
+    for run in sorted(runs, key=lambda r: (r.task, rank(r.algo), r.horizon, r.seed, r.backend)):
+        for name, other in run.cross_evaluations.items():
+            evaluated_on, trained_on = other["backend"], other.get("trained_on", run.backend)
+            if evaluated_on == trained_on:
+                continue  # the same-protocol evaluation on the training backend: a reference, not a row
+            prefix = next(p for p in SIM_TO_SIM_PREFIXES if name.startswith(p))
+            own_name = f"{prefix}{trained_on}.json"
+            if own_name in run.cross_evaluations:
+                own, own_source = run.cross_evaluations[own_name], own_name
+            elif run.evaluation is not None:
+                own, own_source = run.evaluation, "eval.json"
+            else:
+                own, own_source = None, None
+            own_return = own["final"]["mean_return"] if own else math.nan
+            other_return = other["final"]["mean_return"]
+            rows.append(
+                {
+                    "run": run.path.name,
+                    "task": run.task,
+                    "algo": run.algo,
+                    "horizon": run.horizon,
+                    "num_envs": run.num_envs,
+                    "epochs": run.planned_epochs,
+                    "seed": run.seed,
+                    "trained_on": trained_on,
+                    "evaluated_on": evaluated_on,
+                    "own_return": own_return,
+                    "other_return": other_return,
+                    "gap": other_return - own_return,
+                    "own_source": own_source,
+                    "other_source": name,
+                    "same_protocol": _protocol(own) == _protocol(other) if own else None,
+                }
+            )
+    columns = ["run", "task", "algo", "horizon", "num_envs", "epochs", "seed", "trained_on", "evaluated_on"]
+    columns += ["own_return", "other_return", "gap", "own_source", "other_source", "same_protocol"]
+    return pd.DataFrame(rows, columns=columns)
+
+
+def sim_to_sim_mean_table(per_run: pd.DataFrame) -> pd.DataFrame:
+    """Mean over seeds of :func:`sim_to_sim_table` per (task, algo, horizon, envs, planned epochs,
+    trained_on, evaluated_on): runs of different settings are never pooled."""
+    keys = ["task", "algo", "horizon", "num_envs", "epochs", "trained_on", "evaluated_on"]
+    columns = [*keys, "seeds", "own_return_mean", "other_return_mean", "gap_mean", "gap_std"]
+    if per_run.empty:
+        return pd.DataFrame(columns=columns)
+    grouped = per_run.groupby(keys, sort=False)
+    frame = grouped.agg(
+        seeds=("seed", "size"),
+        own_return_mean=("own_return", "mean"),
+        other_return_mean=("other_return", "mean"),
+        gap_mean=("gap", "mean"),
+        gap_std=("gap", "std"),
+    ).reset_index()
+    return frame[columns]
+
+
+def landscape_table(runs: list[RunRecord]) -> pd.DataFrame:
+    """Per run with a landscape.json: grid, span and the roughness of both actor losses, and their ratio."""
+    rows = []
+    for run in sorted(runs, key=lambda r: (r.task, r.backend, rank(r.algo), r.horizon, r.seed)):
+        land = run.landscape
+        if land is None:
+            continue
+        rough = land.get("roughness") or {}
+        h_step, td_lambda = rough.get("h_step"), rough.get("td_lambda")
+        ratio = h_step / td_lambda if h_step is not None and td_lambda else None
+        rows.append(
+            {
+                "run": run.path.name,
+                "task": land.get("task", run.task),
+                "backend": land.get("backend", run.backend),
+                "algo": land.get("algo", run.algo),
+                "horizon": land.get("horizon", run.horizon),
+                "seed": run.seed,
+                "grid": land.get("grid"),
+                "span": land.get("span"),
+                "lambda": land.get("lambda"),
+                "roughness_h_step": h_step,
+                "roughness_td_lambda": td_lambda,
+                "ratio_h_step_over_td_lambda": ratio,
+            }
+        )
+    columns = ["run", "task", "backend", "algo", "horizon", "seed", "grid", "span", "lambda"]
+    columns += ["roughness_h_step", "roughness_td_lambda", "ratio_h_step_over_td_lambda"]
+    return pd.DataFrame(rows, columns=columns)
+
+
+def _pairs_summary(pairs: dict, fields: tuple[str, str]) -> tuple[float | None, float | None]:
+    """(min of fields[0], max of fields[1]) over every comparison nested in ``pairs``."""
+    cosines, diffs = [], []
+
+    def walk(node):
+        if isinstance(node, dict):
+            if fields[0] in node and isinstance(node[fields[0]], int | float):
+                cosines.append(node[fields[0]])
+            if fields[1] in node and isinstance(node[fields[1]], int | float):
+                diffs.append(node[fields[1]])
+            for value in node.values():
+                walk(value)
+
+    walk(pairs)
+    return (min(cosines) if cosines else None), (max(diffs) if diffs else None)
+
+
+_GRADCHECK_FIELDS = (
+    ("tolerance", "tolerance"),
+    ("action_rel_error", "actions"),
+    ("state_rel_error", "initial state"),
+    ("steps", "steps"),
+    ("segment", "segment"),
+)
+
+
+def check_summary(check: CheckRecord) -> str:
+    """One line of a check's key numbers."""
+    r = check.result
+    if check.kind == "gradcheck":
+        parts = [f"max rel. error {fmt(r.get('max_rel_error'))}"]
+        parts += [f"{label} {fmt(r[key])}" for key, label in _GRADCHECK_FIELDS if r.get(key) is not None]
+        return ", ".join(parts)
+    if check.kind == "throughput":
+        fb = r.get("forward_backward_steps_per_s", r.get("forward_backward_steps_per_s_estimated"))
+        return f"{fmt(r.get('forward_steps_per_s'))} env-steps/s forward, {fmt(fb)} with gradients"
+    if check.kind == "crosscheck":
+        cosine, rel_diff = _pairs_summary(r.get("segments", {}), ("cosine", "rel_diff"))
+        return f"gradients across backends: min cosine {fmt(cosine)}, max rel. difference {fmt(rel_diff)}"
+    if check.kind == "parity":
+        g = r.get("gaps", {})
+        return (
+            f"engines: settle height gap {fmt(g.get('settle_height_m'))} m, joint gap "
+            f"{fmt(g.get('settle_joint_rad'))} rad, first-episode length gap {fmt(g.get('episode_length_rel'))} "
+            "(relative)"
+        )
+    if check.kind == "contact-jacobians":
+        a, c = r.get("all", {}), r.get("control_lifted", {})
+        return (
+            f"Jacobians at {a.get('states')} states in contact: median rel. error {fmt(a.get('median_rel_error'))}, "
+            f"{fmt_pct(a.get('within_20pct'))} within 20%; lifted control {fmt(c.get('median_rel_error'))}"
+            + (f"; median state gain {fmt(a['median_state_gain'])}" if "median_state_gain" in a else "")
+        )
+    if check.kind == "grad-paths":
+        s = r.get("summary", {})
+        parts = [
+            f"{label} {fmt(v.get('median_norm'))} ({v.get('above_skip_threshold')} skipped)" for label, v in s.items()
+        ]
+        return f"{r.get('algo')} actor-gradient norms, median over {r.get('epochs')} epochs: " + ", ".join(parts)
+    if check.kind == "forward-crosscheck":
+        _, gap = _pairs_summary(r.get("pairs", {}), ("", "com_distance_max"))
+        return f"forward rollouts across backends: max centre-of-mass distance {fmt(gap)} m, {r.get('steps')} steps"
+    return "result keys: " + ", ".join(sorted(r)[:8])
+
+
+def _check_backends(check: CheckRecord) -> str | None:
+    r = check.result
+    if r.get("backend"):
+        return str(r["backend"])
+    if r.get("backends"):
+        return ", ".join(r["backends"])
+    pairs = r.get("pairs") or next(iter((r.get("segments") or {}).values()), {}).get("pairs", {})
+    names = sorted({name for pair in pairs for name in pair.split(" vs ")})
+    return ", ".join(names) or None
+
+
+def checks_table(checks: list[CheckRecord]) -> pd.DataFrame:
+    """Every check file in one line: kind, task, backend(s), pass/fail where the check decides one, key numbers."""
+    rows = []
+    for check in sorted(checks, key=lambda c: (c.kind, str(c.result.get("task")), c.path.name)):
+        passed = check.result.get("passed", check.result.get("ok"))
+        rows.append(
+            {
+                "file": check.path.name,
+                "kind": check.kind,
+                "task": check.result.get("task"),
+                "backend": _check_backends(check),
+                "passed": passed if isinstance(passed, bool) else None,
+                "summary": check_summary(check),
+                "created_utc": check.provenance.get("created_utc"),
+                "commit": check.provenance.get("git_commit"),
+            }
+        )
+    columns = ["file", "kind", "task", "backend", "passed", "summary", "created_utc", "commit"]
+    return pd.DataFrame(rows, columns=columns)

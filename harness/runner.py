@@ -1,0 +1,361 @@
+"""Running a suite's jobs (:mod:`harness.bench` plans them): ``workers`` at a time, each in its own process.
+
+Every job runs as ``python -m harness ...`` (local processes, or Ray tasks: :mod:`harness.launchers`)
+with its output in ``STORE/NAME/logs/``; a job starts once the jobs it needs are done, a failing job
+is reported and the suite goes on with the others, and a progress line (jobs done, ETA from the
+estimated costs, corrected by the jobs that finished) follows every event. Ctrl-C or SIGTERM stops
+the running jobs at their next epoch boundary (checkpointed); running the same command again
+continues where it stopped. ``bench-run`` is one training run's job: train or resume, then evaluate.
+At the end the report (:mod:`harness.report`) is written from whatever is finished.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+from harness.bench import (
+    CHECK_KINDS,
+    Job,
+    _hash,
+    _training_complete,
+    load_spec,
+    plan,
+)
+from harness.claims import Claim
+from harness.results import RunError, RunStopped
+
+
+class SuiteStopped(RunStopped):
+    """The suite stopped on a signal; its running jobs checkpointed (exit 128 + signal, like ``train``)."""
+
+    def __init__(self, store, finished: int, total: int, signum: int):
+        RuntimeError.__init__(
+            self,
+            f"{signal.Signals(signum).name}: {finished}/{total} jobs finished, the running ones checkpointed in "
+            f"{store}; run the same command again to continue",
+        )
+        self.signum = signum
+
+
+# -- running ----------------------------------------------------------------------------------------
+
+
+def _fmt(seconds: float) -> str:
+    if seconds >= 5400:
+        return f"{seconds / 3600:.1f} h"
+    if seconds >= 90:
+        return f"{seconds / 60:.1f} min"
+    return f"{seconds:.0f} s"
+
+
+class _Progress:
+    """Runs done / total with an ETA from the estimated costs, corrected by the jobs that finished."""
+
+    def __init__(self, name: str, jobs: list[Job], workers: int, stream):
+        self.name, self.jobs, self.workers, self.stream = name, jobs, workers, stream
+        self.t0 = time.perf_counter()
+        self.measured: dict[tuple, list[float]] = {}  # cost key -> [actual seconds, estimated seconds]
+        self.lock = threading.Lock()
+
+    def record(self, job: Job, seconds: float) -> None:
+        with self.lock:
+            actual, estimated = self.measured.get(job.cost_key, [0.0, 0.0])
+            self.measured[job.cost_key] = [actual + seconds, estimated + job.estimate_s]
+
+    def _remaining(self) -> float:
+        """Estimated seconds left: each job's estimate, scaled by how jobs of its kind, backend and task
+        actually took so far (1 until one has finished), divided over the workers."""
+        left = 0.0
+        for job in self.jobs:
+            if job.state in ("pending", "running"):
+                actual, estimated = self.measured.get(job.cost_key, [0.0, 0.0])
+                factor = actual / estimated if estimated > 0 else 1.0
+                left += job.estimate_s * factor * (0.5 if job.state == "running" else 1.0)
+        return left / max(self.workers, 1)
+
+    def line(self, event: str) -> None:
+        with self.lock:
+            finished = [j for j in self.jobs if j.state in ("done", "reused", "failed", "skipped")]
+            reused = sum(j.state == "reused" for j in self.jobs)
+            failed = sum(j.state in ("failed", "skipped") for j in self.jobs)
+            runs = [j for j in self.jobs if j.kind == "train"]
+            runs_done = sum(j.state in ("done", "reused") for j in runs)
+            active = sum(j.state == "running" for j in self.jobs)
+            elapsed = time.perf_counter() - self.t0
+            text = (
+                f"[bench {self.name}] jobs {len(finished)}/{len(self.jobs)} (runs {runs_done}/{len(runs)}; "
+                f"{active} running, {reused} reused, {failed} failed) · elapsed {_fmt(elapsed)} · "
+                f"ETA {_fmt(self._remaining())} · {event}"
+            )
+        print(text, file=self.stream, flush=True)
+
+
+def run_jobs(jobs: list[Job], store: Path, workers: int, name: str, stream=sys.stdout, launcher=None) -> list[Job]:
+    """Run the jobs not yet done, ``workers`` at a time, in order, each after the jobs it needs, on
+    ``launcher`` (harness/launchers.py; default: local processes)."""
+    from harness.launchers import LocalLauncher, last_error_line
+
+    launcher = launcher or LocalLauncher(workers)
+    workers = launcher.workers
+    logs = store / "logs"
+    logs.mkdir(parents=True, exist_ok=True)
+    for job in jobs:
+        if job.is_done():
+            job.state = "reused"
+    progress = _Progress(name, jobs, workers, stream)
+    progress.line(f"start ({launcher.describe()})")
+    by_label = {job.label: job for job in jobs}
+    cond = threading.Condition()
+    stop = threading.Event()
+    running: set = set()  # handles of the launched jobs (processes or Ray task references)
+    running_lock = threading.Lock()
+
+    def ready(job: Job) -> bool | None:
+        """True to start, None to skip (a job it needs failed), False to wait."""
+        states = [by_label[label].state for label in job.after]
+        if any(s in ("failed", "skipped") for s in states):
+            return None
+        return all(s in ("done", "reused") for s in states)
+
+    def worker() -> None:
+        while not stop.is_set():
+            with cond:
+                job = None
+                while job is None:
+                    pending = [j for j in jobs if j.state == "pending"]
+                    # analyses of finished runs first: a stopped suite then has them for what it trained
+                    pending.sort(key=lambda j: j.kind not in ("sim_to_sim", "landscape"))
+                    if not pending or stop.is_set():
+                        return
+                    for candidate in pending:
+                        verdict = ready(candidate)
+                        if verdict is None:
+                            candidate.state = "skipped"
+                            cond.notify_all()
+                        elif verdict:
+                            job = candidate
+                            job.state = "running"
+                            break
+                    if job is None:
+                        if not any(j.state == "pending" for j in jobs):
+                            return
+                        cond.wait(timeout=1.0)
+            _run_one(job, logs, progress)
+            with cond:
+                cond.notify_all()
+
+    def _run_one(job: Job, logs: Path, progress: _Progress) -> None:
+        if job.kind == "train":
+            _write_job_file(job)
+        log = logs / f"{job.label.replace(' ', '_').replace('/', '-')}.log"
+        progress.line(f"start {job.label}")
+        start = time.perf_counter()
+        with running_lock:
+            if stop.is_set():
+                job.state = "pending"
+                return
+            handle = launcher.start(job.argv, log)
+            running.add(handle)
+        code = launcher.wait(handle)
+        with running_lock:
+            running.discard(handle)
+        seconds = time.perf_counter() - start
+        if code in (130, 143) or stop.is_set():
+            job.state = "pending"
+            stop.set()
+            progress.line(f"stopped {job.label} (resumable)")
+            return
+        job.state = "done" if code == 0 and job.is_done() else "failed"
+        progress.record(job, seconds)
+        note = "" if job.state == "done" else f" (exit {code}; see {log}): {last_error_line(log)}"
+        progress.line(f"{job.state} {job.label} in {_fmt(seconds)}{note}")
+
+    signals_seen: list[int] = []
+
+    def on_signal(signum, frame):
+        # Jobs run in their own sessions, so a terminal's Ctrl-C reaches only this process: pass each
+        # signal on exactly once. The first makes a training job finish its epoch and checkpoint; a
+        # second stops it at once (it resumes from its last checkpoint either way).
+        signals_seen.append(signum)
+        stop.set()
+        if len(signals_seen) == 1:
+            print(
+                f"\n{signal.Signals(signum).name}: the running jobs checkpoint at their next epoch boundary and stop; "
+                "run the same command again to continue (again to stop them now)",
+                file=stream,
+                flush=True,
+            )
+        with running_lock:
+            for handle in running:
+                launcher.signal(handle, signum)
+
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            previous[signum] = signal.signal(signum, on_signal)
+    threads = [threading.Thread(target=worker, daemon=True) for _ in range(max(1, workers))]
+    try:
+        for t in threads:
+            t.start()
+        for t in threads:
+            while t.is_alive():
+                t.join(timeout=0.5)
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+    if signals_seen:
+        raise SuiteStopped(store, sum(j.state in ("done", "reused") for j in jobs), len(jobs), signals_seen[0])
+    return jobs
+
+
+def _write_job_file(job: Job) -> None:
+    """The run's planned configuration, read by ``bench-run`` (and by nothing that changes it)."""
+    from harness.results import write_json
+
+    job.run_dir.mkdir(parents=True, exist_ok=True)
+    payload = {**job.run.identity(), "eval": job.run.eval_settings(), "key": job.run.key, "preset": job.run.preset}
+    write_json(job.run_dir / "job.json", payload)
+
+
+def bench_run(run_dir: str | Path, stream=sys.stdout) -> Path:
+    """One training run of the suite: train, or resume an interrupted one, then evaluate (``bench-run``)."""
+    run_dir = Path(run_dir)
+    path = run_dir / "job.json"
+    if not path.is_file():
+        raise RunError(f"{run_dir} has no job.json: bench-run runs directories planned by `bench`")
+    job = json.loads(path.read_text())
+    with Claim(run_dir, stream=stream):  # one worker writes a run; the others wait (or take over a dead one's)
+        _train_and_evaluate(run_dir, job, stream)
+    return run_dir
+
+
+def _evaluated(run_dir: Path, ev: dict) -> bool:
+    try:
+        payload = json.loads((run_dir / "eval.json").read_text())
+    except (OSError, ValueError):
+        return False
+    expect = {"seeds": ev["seeds"], "max_steps": ev["max_steps"]} | (
+        {"num_envs": ev["num_envs"]} if ev["num_envs"] else {}
+    )
+    return all(payload.get(k) == v for k, v in expect.items())
+
+
+def _train_and_evaluate(run_dir: Path, job: dict, stream) -> None:
+    from algorithms.config import AlgoConfig
+    from harness.train import evaluate, read_config, resume, train
+
+    ev = job["eval"]
+    if _training_complete(run_dir, job["epochs"]) and (not ev["seeds"] or _evaluated(run_dir, ev)):
+        print(f"{run_dir.name}: already finished (by another worker)", file=stream, flush=True)
+        return
+    if (run_dir / "config.json").is_file():
+        config = read_config(run_dir)
+        recorded = {k: config[k] for k in ("task", "backend", "seed", "device", "epochs")}
+        recorded["algo"] = config["algo_config"].as_dict()
+        recorded["physics"] = config.get("physics_record")
+        if _hash(recorded) != job["key"]:
+            raise RunError(f"{run_dir}: config.json does not match the planned run (job.json): move the folder away")
+        if not _training_complete(run_dir, job["epochs"]):
+            resume(run_dir, command="python -m harness bench-run " + str(run_dir), stream=stream)
+    else:
+        cfg = AlgoConfig.from_dict(job["algo"])
+        train(
+            run_dir,
+            job["task"],
+            job["backend"],
+            cfg,
+            job["epochs"],
+            seed=job["seed"],
+            device=job["device"],
+            command="python -m harness bench-run " + str(run_dir),
+            stream=stream,
+            preset=job.get("preset"),  # None: the task's default
+        )
+    if ev["seeds"]:
+        evaluate(run_dir, seeds=ev["seeds"], num_envs=ev["num_envs"], max_steps=ev["max_steps"], stream=stream)
+
+
+def run_suite(
+    profile: str | None = None,
+    spec_file: str | None = None,
+    store: str | Path = "results/bench",
+    jobs: int | None = None,
+    dry_run: bool = False,
+    report_only: bool = False,
+    command: str | None = None,
+    stream=sys.stdout,
+    launcher: str = "local",
+    address: str | None = None,
+    gpus_per_run: float = 0.25,
+) -> int:
+    """Plan, run what is missing (on the local or the Ray launcher), write the tables and plots; 0 when
+    every job succeeded."""
+    from harness.launchers import make_launcher
+
+    data, spec_path = load_spec(profile, spec_file)
+    name = data["suite"]["name"]
+    # absolute: a Ray worker on another node resolves the same path on the shared storage
+    store = Path(store).resolve() / name
+    all_jobs = plan(data, store)
+    workers = jobs or int(data["suite"].get("jobs", 1))
+    if dry_run:
+        for job in all_jobs:
+            status = "done" if job.is_done() else ("resume" if (job.output.parent / "config.json").exists() else "new")
+            print(f"{status:6s} ~{_fmt(job.estimate_s):>8s}  {job.label}", file=stream)
+        total = sum(j.estimate_s for j in all_jobs if not j.is_done())
+        print(f"{len(all_jobs)} jobs; about {_fmt(total / max(workers, 1))} on {workers} workers", file=stream)
+        return 0
+    if not report_only:
+        runner = make_launcher(
+            launcher, jobs if launcher == "ray" else workers, address, data["suite"].get("device", "cpu"), gpus_per_run
+        )
+        try:
+            run_jobs(all_jobs, store, workers, name, stream, launcher=runner)
+        finally:
+            runner.close()
+    else:
+        for job in all_jobs:
+            job.state = "reused" if job.is_done() else "pending"
+    return _finish(data, spec_path, store, all_jobs, command, stream)
+
+
+def _finish(data: dict, spec_path: Path, store: Path, jobs: list[Job], command: str | None, stream) -> int:
+    from harness.report import write_bench_report
+    from harness.results import provenance
+
+    name = data["suite"]["name"]
+    runs = [j.run_dir for j in jobs if j.kind == "train" and (j.run_dir / "config.json").is_file()]
+    checks = [j.output for j in jobs if j.kind in CHECK_KINDS and j.output.is_file()]
+    out_dir = store
+    header = {**provenance(command), "profile": name, "spec": str(spec_path)}
+    written = write_bench_report(runs, checks, out_dir, header)
+    failed = [j for j in jobs if j.state in ("failed", "skipped")]
+    missing = [j for j in jobs if j.state == "pending"]
+    from harness.results import write_json
+
+    status = {
+        "profile": name,
+        "spec": str(spec_path),
+        "jobs": [
+            {"label": j.label, "kind": j.kind, "state": j.state, "output": str(j.output), "command": " ".join(j.argv)}
+            for j in jobs
+        ],
+        "provenance": provenance(command),
+    }
+    written.append(write_json(out_dir / "jobs.json", status))
+    print(f"\n[bench {name}] wrote {len(written)} files in {out_dir}:", file=stream)
+    for path in written:
+        print(f"  {path}", file=stream)
+    if missing:
+        print(f"[bench {name}] {len(missing)} job(s) not run yet: run the same command again", file=stream)
+    if failed:
+        print(f"[bench {name}] {len(failed)} job(s) failed or skipped (logs in {store / 'logs'}):", file=stream)
+        for job in failed:
+            print(f"  {job.state}: {job.label}", file=stream)
+        return 1
+    return 0 if not missing else 3
