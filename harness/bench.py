@@ -76,7 +76,7 @@ GRADIENT_CHECK_KINDS = (
     "fd-schemes",
 )
 #: kinds measured on one backend only (the verb's own), and the peer simulators ``peer`` measures
-ONLY_BACKEND = {"fd-schemes": "mujoco_warp", "solver-probe": "newton"}
+ONLY_BACKEND = {"fd-schemes": "mujoco_warp"}
 PEERS = ("rewarped",)
 
 # Seconds per env step of a training epoch (simulation with gradients and the updates) on this 2-core
@@ -150,10 +150,15 @@ def load_spec(profile: str | None = None, spec_file: str | None = None) -> tuple
         data = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:
         raise RunError(f"{path}: not valid TOML ({exc})") from None
-    _expect(data, {"suite", "eval", "train", "check", "sim_to_sim", "landscape"}, str(path))
+    return check_spec(data, str(path)), path
+
+
+def check_spec(data: dict, where: str) -> dict:
+    """``data`` if its top level is a spec's (the blocks :func:`plan` then checks one by one)."""
+    _expect(data, {"suite", "eval", "train", "check", "sim_to_sim", "landscape"}, where)
     if "suite" not in data or "name" not in data["suite"]:
-        raise RunError(f"{path}: needs [suite] with a name")
-    return data, path
+        raise RunError(f"{where}: needs [suite] with a name")
+    return data
 
 
 def physics_identity(task: str, preset: str | None = None) -> dict:
@@ -402,6 +407,18 @@ def _logged_epochs(path: Path) -> int:
     return last + 1
 
 
+def _distinct_labels(checks: list[Job], args: list[list[str]]) -> None:
+    """Checks of one kind, backend, task and preset that differ in their other words (``--with-contact``)
+    get those words in their labels, so no two jobs share one."""
+    counts: dict[str, int] = {}
+    for job in checks:
+        counts[job.label] = counts.get(job.label, 0) + 1
+    for job, words in zip(checks, args, strict=True):
+        if counts[job.label] > 1:
+            extra = [w for k, w in enumerate(words) if w != "--preset" and (k == 0 or words[k - 1] != "--preset")]
+            job.label += f" [{' '.join(extra)}]" if extra else ""
+
+
 def _check_targets(kind: str, backend_names: list[str], task: str) -> list[tuple[str, list[str]]]:
     """(label backend, the verb's words naming what it checks) of each job of a check block's task."""
     if kind in MULTI_BACKEND_KINDS:
@@ -464,6 +481,7 @@ def plan(data: dict, store: Path) -> list[Job]:
         jobs.append(job)
         by_identity[(run.task, run.backend, run.algo, run.seed, run.horizon, run.preset)] = job
 
+    check_args: list[list[str]] = []  # each check job's extra words, in order
     for i, block in enumerate(data.get("check", [])):
         where = f"[[check]] #{i + 1}"
         _expect(block, {"kind", "backends", "tasks", "args", "per_task"}, where)
@@ -485,6 +503,7 @@ def plan(data: dict, store: Path) -> list[Job]:
                 out = store / "checks" / f"{kind}_{task}_{label_backend}_{key}.json"
                 if kind not in MULTI_BACKEND_KINDS + ("fd-schemes", "solver-probe", "peer"):  # these run on the CPU
                     words = [*words, "--device", device]
+                check_args.append(args)
                 jobs.append(
                     Job(
                         label=f"{kind} {label_backend}/{task}{_preset_suffix(args)}",
@@ -499,6 +518,7 @@ def plan(data: dict, store: Path) -> list[Job]:
     first_seed = min((r.seed for r in runs), default=0)
     trains = [j for j in jobs if j.kind == "train"]
     checks = [j for j in jobs if j.kind in CHECK_KINDS]
+    _distinct_labels(checks, check_args)
     jobs = [j for j in trains if j.run.seed == first_seed] + checks + [j for j in trains if j.run.seed != first_seed]
 
     def select(block: dict, where: str, backend_key: str) -> list[Job]:

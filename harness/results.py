@@ -140,6 +140,32 @@ def write_json(path: str | os.PathLike, payload: dict) -> Path:
     return atomic_write_text(path, json.dumps(payload, indent=2, sort_keys=False) + "\n")
 
 
+#: what a check file can hold, by the verb that wrote it (a soft body's crosscheck compares forward
+#: rollouts: ``forward-crosscheck``)
+CHECK_RESULT_KINDS = (
+    "gradcheck",
+    "throughput",
+    "crosscheck",
+    "forward-crosscheck",
+    "parity",
+    "contact-jacobians",
+    "grad-paths",
+    "grad-growth",
+    "scaling",
+    "fd-schemes",
+    "solver-probe",
+    "peer",
+)
+
+
+def write_check(path: str | os.PathLike, kind: str, result: dict, command: str | None = None) -> Path:
+    """A check's result file, one schema for every kind: ``{"kind", "result", "provenance"}``. The kind
+    says what ``result`` holds, so a report reads it back without guessing from its keys."""
+    if kind not in CHECK_RESULT_KINDS:
+        raise ValueError(f"unknown check kind {kind!r}; choose from: {', '.join(CHECK_RESULT_KINDS)}")
+    return write_json(path, {"kind": kind, "result": result, "provenance": provenance(command)})
+
+
 def read_metrics(path: Path) -> list[dict]:
     """Rows of metrics.jsonl; a torn last line (a kill during its write) is dropped."""
     if not path.exists():

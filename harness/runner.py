@@ -23,10 +23,12 @@ from harness.bench import (
     Job,
     _hash,
     _training_complete,
+    check_spec,
     load_spec,
     plan,
 )
 from harness.claims import Claim
+from harness.progress import ProgressLine, duration
 from harness.results import RunError, RunStopped
 
 
@@ -45,19 +47,12 @@ class SuiteStopped(RunStopped):
 # -- running ----------------------------------------------------------------------------------------
 
 
-def _fmt(seconds: float) -> str:
-    if seconds >= 5400:
-        return f"{seconds / 3600:.1f} h"
-    if seconds >= 90:
-        return f"{seconds / 60:.1f} min"
-    return f"{seconds:.0f} s"
-
-
 class _Progress:
     """Runs done / total with an ETA from the estimated costs, corrected by the jobs that finished."""
 
     def __init__(self, name: str, jobs: list[Job], workers: int, stream):
-        self.name, self.jobs, self.workers, self.stream = name, jobs, workers, stream
+        self.name, self.jobs, self.workers = name, jobs, workers
+        self.display = ProgressLine(stream)
         self.t0 = time.perf_counter()
         self.measured: dict[tuple, list[float]] = {}  # cost key -> [actual seconds, estimated seconds]
         self.lock = threading.Lock()
@@ -89,10 +84,10 @@ class _Progress:
             elapsed = time.perf_counter() - self.t0
             text = (
                 f"[bench {self.name}] jobs {len(finished)}/{len(self.jobs)} (runs {runs_done}/{len(runs)}; "
-                f"{active} running, {reused} reused, {failed} failed) · elapsed {_fmt(elapsed)} · "
-                f"ETA {_fmt(self._remaining())} · {event}"
+                f"{active} running, {reused} reused, {failed} failed) · elapsed {duration(elapsed)} · "
+                f"ETA {duration(self._remaining())} · {event}"
             )
-        print(text, file=self.stream, flush=True)
+        self.display.show(text, final=True)
 
 
 def run_jobs(jobs: list[Job], store: Path, workers: int, name: str, stream=sys.stdout, launcher=None) -> list[Job]:
@@ -173,7 +168,7 @@ def run_jobs(jobs: list[Job], store: Path, workers: int, name: str, stream=sys.s
         job.state = "done" if code == 0 and job.is_done() else "failed"
         progress.record(job, seconds)
         note = "" if job.state == "done" else f" (exit {code}; see {log}): {last_error_line(log)}"
-        progress.line(f"{job.state} {job.label} in {_fmt(seconds)}{note}")
+        progress.line(f"{job.state} {job.label} in {duration(seconds)}{note}")
 
     signals_seen: list[int] = []
 
@@ -283,6 +278,7 @@ def _train_and_evaluate(run_dir: Path, job: dict, stream) -> None:
 def run_suite(
     profile: str | None = None,
     spec_file: str | None = None,
+    spec: dict | None = None,
     store: str | Path = "results/bench",
     jobs: int | None = None,
     dry_run: bool = False,
@@ -294,10 +290,13 @@ def run_suite(
     gpus_per_run: float = 0.25,
 ) -> int:
     """Plan, run what is missing (on the local or the Ray launcher), write the tables and plots; 0 when
-    every job succeeded."""
+    every job succeeded. The spec is a profile, a TOML file or ``spec``, one made in memory (``sweep``)."""
     from harness.launchers import make_launcher
 
-    data, spec_path = load_spec(profile, spec_file)
+    if spec is not None:
+        data, spec_path = check_spec(spec, "the sweep's spec"), "(made in memory by sweep)"
+    else:
+        data, spec_path = load_spec(profile, spec_file)
     name = data["suite"]["name"]
     # absolute: a Ray worker on another node resolves the same path on the shared storage
     store = Path(store).resolve() / name
@@ -306,9 +305,9 @@ def run_suite(
     if dry_run:
         for job in all_jobs:
             status = "done" if job.is_done() else ("resume" if (job.output.parent / "config.json").exists() else "new")
-            print(f"{status:6s} ~{_fmt(job.estimate_s):>8s}  {job.label}", file=stream)
+            print(f"{status:6s} ~{duration(job.estimate_s):>8s}  {job.label}", file=stream)
         total = sum(j.estimate_s for j in all_jobs if not j.is_done())
-        print(f"{len(all_jobs)} jobs; about {_fmt(total / max(workers, 1))} on {workers} workers", file=stream)
+        print(f"{len(all_jobs)} jobs; about {duration(total / max(workers, 1))} on {workers} workers", file=stream)
         return 0
     if not report_only:
         runner = make_launcher(

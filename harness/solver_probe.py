@@ -24,7 +24,7 @@ import time
 
 import torch
 
-from harness.results import provenance, write_json
+from harness.results import write_check
 
 #: (label, physics preset (None: the task's default), physics changes, adapter options) for the Ant on Newton
 ANT_CANDIDATES = [
@@ -67,8 +67,7 @@ def run_probe(
             print(json.dumps(result), flush=True)
             results.append(result)
     if out:
-        payload = {"task": task, "backend": backend, "runs": results, "provenance": provenance(command)}
-        print(f"wrote {write_json(out, payload)}")
+        print(f"wrote {write_check(out, 'solver-probe', {'task': task, 'backend': backend, 'runs': results}, command)}")
     return results
 
 

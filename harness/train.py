@@ -38,6 +38,7 @@ import torch
 from algorithms.actor_critic import FirstOrderActorCritic
 from algorithms.config import AlgoConfig
 from harness.envs import make_env, run_task
+from harness.progress import ProgressLine, duration
 from harness.results import (
     RunError,
     RunStopped,
@@ -145,11 +146,11 @@ def read_config(run_dir: Path) -> dict:
 
 
 class _Progress:
-    """A one-line progress bar on a terminal, periodic plain lines otherwise."""
+    """Training's progress bar: epochs done, return, lambda, rate and ETA (:class:`harness.progress.ProgressLine`)."""
 
     def __init__(self, total: int, start: int, stream=sys.stdout):
-        self.total, self.start, self.stream = total, start, stream
-        self.tty = stream.isatty()
+        self.total, self.start = total, start
+        self.line = ProgressLine(stream, every=max(1, total // 20))
         self.t0 = time.perf_counter()
 
     def update(self, epoch: int, row: dict) -> None:
@@ -160,17 +161,11 @@ class _Progress:
         eta = (self.total - done) / rate if rate > 0 else float("nan")
         width = 24
         filled = int(width * done / self.total)
-        line = (
+        self.line.show(
             f"[{'#' * filled}{'.' * (width - filled)}] epoch {done}/{self.total} "
-            f"return {ret_s}  lambda {row['lam']:.3f}  {rate:.2f} ep/s  eta {eta / 60:.1f} min"
+            f"return {ret_s}  lambda {row['lam']:.3f}  {rate:.2f} ep/s  eta {duration(eta) if eta == eta else 'n/a'}",
+            final=done == self.total,
         )
-        if self.tty:
-            self.stream.write("\r" + line)
-            if done == self.total:
-                self.stream.write("\n")
-        elif done == self.total or done % max(1, self.total // 20) == 0:
-            self.stream.write(line + "\n")
-        self.stream.flush()
 
 
 def _append_metrics(path: Path, row: dict) -> None:
@@ -304,14 +299,6 @@ def _resume_source(run_dir: Path) -> tuple[Path, dict] | None:
     return None
 
 
-def _duration(seconds: float) -> str:
-    """``seconds`` as s, min, h or days, whichever reads best."""
-    for unit, size in (("days", 86400.0), ("h", 3600.0), ("min", 60.0)):
-        if seconds >= 2 * size:
-            return f"{seconds / size:.1f} {unit}"
-    return f"{seconds:.1f} s"
-
-
 def _run(
     run_dir: Path,
     config: dict,
@@ -357,10 +344,10 @@ def _run(
         remaining = per_epoch * (epochs - algo.epoch)
         print(
             f"cost estimate ({backend}, measured on {cost['sample_worlds']} worlds in {cost['sample_seconds']:.1f} s): "
-            f"{_duration(cost['seconds_per_step'])} per control step with gradients "
+            f"{duration(cost['seconds_per_step'])} per control step with gradients "
             f"({cost['worlds_per_step']} worlds), "
-            f"{_duration(per_epoch)} per epoch of {algo_config.horizon} steps, "
-            f"{_duration(remaining)} for the {epochs - algo.epoch} epochs to go (simulation only)",
+            f"{duration(per_epoch)} per epoch of {algo_config.horizon} steps, "
+            f"{duration(remaining)} for the {epochs - algo.epoch} epochs to go (simulation only)",
             file=stream,
             flush=True,
         )

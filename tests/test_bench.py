@@ -56,9 +56,9 @@ def _env() -> dict:
 
 
 def test_every_shipped_profile_plans(tmp_path):
-    """smoke, standard and paper parse and expand to jobs (names, algorithms and configs all valid)."""
+    """Every shipped profile parses and expands to jobs (names, algorithms and configs all valid)."""
     counts = {}
-    for profile in ("smoke", "standard", "paper"):
+    for profile in ("smoke", "standard", "perf", "paper"):
         data, _ = load_spec(profile=profile)
         jobs = plan(data, tmp_path)
         counts[profile] = sum(j.kind == "train" for j in jobs)

@@ -186,9 +186,16 @@ def suite(tmp_path_factory):
     }
     check_files = []
     for name, content in (
-        ("throughput_ant_newton_1.json", {"result": throughput, "provenance": {"git_commit": "abc"}}),
-        ("gradcheck_ant_newton_2.json", {"result": gradcheck, "provenance": {"git_commit": "abc"}}),
-        ("crosscheck_ant_newton-mujoco_warp_3.json", {**crosscheck, "provenance": {"git_commit": "abc"}}),
+        (
+            "throughput_ant_newton_1.json",
+            {"kind": "throughput", "result": throughput, "provenance": {"git_commit": "abc"}},
+        ),
+        (
+            "gradcheck_ant_newton_2.json",
+            {"kind": "gradcheck", "result": gradcheck, "provenance": {"git_commit": "abc"}},
+        ),
+        ("crosscheck_ant_newton-mujoco_warp_3.json", {"kind": "crosscheck", "result": crosscheck}),
+        ("parity_ant_newton-mujoco_warp_4.json", {"result": crosscheck}),  # no kind: skipped with one line
     ):
         (checks / name).write_text(json.dumps(content))
         check_files.append(checks / name)
@@ -444,6 +451,7 @@ def test_throughput_backends_sim_to_sim_landscape_checks(suite):
     assert bool(_row(checks, kind="gradcheck")["passed"])
     assert "min cosine 0.999" in _row(checks, kind="crosscheck")["summary"]
     assert "never_written.json" in suite["log"]
+    assert "skipped check" in suite["log"] and "parity_ant_newton-mujoco_warp_4.json" in suite["log"]
 
 
 def test_every_file_states_its_provenance(suite):

@@ -332,7 +332,6 @@ def test_ray_launcher_matches_local_and_survives_a_killed_worker(tmp_path, ray_h
 
 SWEEP = ["--backend", "pointmass", "--task", "pointmass", "--algos", "shac", "shac-tdadpt", "--seeds", "0"]
 SWEEP += ["--epochs", "3", "--num-envs", "4", "--horizon", "4", "--eval-seeds", "1"]
-SWEEP_RUNS = ("pointmass_pointmass_shac_s0", "pointmass_pointmass_shac-tdadpt_s0")
 
 
 def _sweep(out: Path, *extra: str, env: dict | None = None) -> str:
@@ -347,30 +346,37 @@ def _sweep(out: Path, *extra: str, env: dict | None = None) -> str:
     return done.stdout
 
 
+def _sweep_runs(out: Path) -> list[str]:
+    """The sweep's run folders: the suite's addressed runs (``OUT/runs/TASK_BACKEND_ALGO_hH_sS_KEY``)."""
+    return sorted(p.name for p in (out / "runs").iterdir() if (p / "config.json").is_file())
+
+
 @pytest.fixture(scope="module")
 def sweep_in_one_process(tmp_path_factory) -> Path:
-    """The reference: the sweep's runs trained one after another in the sweep's own process."""
+    """The reference: the sweep's runs trained one after another (one job at a time)."""
     out = tmp_path_factory.mktemp("sweep") / "one"
     _sweep(out)
     return out
 
 
 @POINTMASS
-def test_sweep_with_jobs_runs_in_processes_and_matches_one_process(tmp_path, sweep_in_one_process):
+def test_sweep_is_a_suite_and_two_jobs_give_the_runs_of_one(tmp_path, sweep_in_one_process):
     stdout = _sweep(tmp_path / "pool", "--jobs", "2")
     assert "jobs 2/2 (runs 2/2; 0 running" in stdout  # the suite's runner, two processes
-    for name in SWEEP_RUNS:
-        assert _rows(tmp_path / "pool" / name) == _rows(sweep_in_one_process / name)
-    assert (tmp_path / "pool" / "logs").is_dir() and (tmp_path / "pool" / "summary.md").is_file()
+    names = _sweep_runs(sweep_in_one_process)
+    assert len(names) == 2 and _sweep_runs(tmp_path / "pool") == names  # the same addresses
+    for name in names:
+        assert _rows(tmp_path / "pool" / "runs" / name) == _rows(sweep_in_one_process / "runs" / name)
+    assert (tmp_path / "pool" / "logs").is_dir() and (tmp_path / "pool" / "returns.md").is_file()
 
 
 @POINTMASS
 def test_sweep_on_ray_writes_the_same_runs(tmp_path, ray_head, sweep_in_one_process):
     _sweep(tmp_path / "ray", "--launcher", "ray", "--address", ray_head["address"], env=ray_head["env"])
-    for name in SWEEP_RUNS:
-        assert _rows(tmp_path / "ray" / name) == _rows(sweep_in_one_process / name)
-        ray_eval = json.loads((tmp_path / "ray" / name / "eval.json").read_text())
-        local_eval = json.loads((sweep_in_one_process / name / "eval.json").read_text())
+    for name in _sweep_runs(sweep_in_one_process):
+        assert _rows(tmp_path / "ray" / "runs" / name) == _rows(sweep_in_one_process / "runs" / name)
+        ray_eval = json.loads((tmp_path / "ray" / "runs" / name / "eval.json").read_text())
+        local_eval = json.loads((sweep_in_one_process / "runs" / name / "eval.json").read_text())
         assert ray_eval["final"] == local_eval["final"]
 
 

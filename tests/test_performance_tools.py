@@ -21,7 +21,7 @@ def test_scaling_writes_csv_json_and_plot_and_skips_what_would_take_too_long(tmp
     out = tmp_path / "scaling_pm"
     args = ["scaling", "--backend", "pointmass", "--task", "pointmass", "--envs", "1", "2", "4"]
     assert main([*args, "--horizon", "2", "--windows", "1", "--out", str(out)]) == 0
-    rows = json.loads(out.with_suffix(".json").read_text())["rows"]
+    rows = json.loads(out.with_suffix(".json").read_text())["result"]["rows"]
     assert [r["num_envs"] for r in rows] == [1, 2, 4]
     assert all(r["forward_steps_per_s"] > 0 and r["forward_backward_steps_per_s"] > 0 for r in rows)
     csv_text = out.with_suffix(".csv").read_text()
@@ -31,13 +31,13 @@ def test_scaling_writes_csv_json_and_plot_and_skips_what_would_take_too_long(tmp
 
     tight = tmp_path / "scaling_tight"
     assert main([*args, "--horizon", "2", "--windows", "1", "--max-seconds", "1e-9", "--out", str(tight)]) == 0
-    rows = json.loads(tight.with_suffix(".json").read_text())["rows"]
+    rows = json.loads(tight.with_suffix(".json").read_text())["result"]["rows"]
     assert rows[0]["forward_steps_per_s"] > 0
     assert all(r["forward_steps_per_s"] is None and r["note"].startswith("skipped") for r in rows[1:])
 
     forward = tmp_path / "scaling_forward"
     assert main([*args, "--horizon", "2", "--windows", "1", "--forward-only", "--out", str(forward)]) == 0
-    rows = json.loads(forward.with_suffix(".json").read_text())["rows"]
+    rows = json.loads(forward.with_suffix(".json").read_text())["result"]["rows"]
     assert all(r["forward_steps_per_s"] > 0 and r["forward_backward_steps_per_s"] is None for r in rows)
 
     both = tmp_path / "both.png"

@@ -82,6 +82,7 @@ def test_throughput_verb_writes_a_result_with_its_command(tmp_path):
     assert out.returncode == 0, out.stderr
     assert "forward + backward" in out.stdout
     payload = json.loads(out_file.read_text())
+    assert payload["kind"] == "throughput"
     result = payload["result"]
     assert result["forward_steps_per_s"] > 0 and result["forward_backward_steps_per_s"] > 0
     assert result["overhead_ratio"] > 0

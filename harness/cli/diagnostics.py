@@ -43,7 +43,7 @@ def cmd_gradcheck(args) -> int:
     ok = result.max_rel_error <= tolerance
     print(f"max relative error {result.max_rel_error:.3e} (tolerance {tolerance:.1e}): {'PASS' if ok else 'FAIL'}")
     if args.out:
-        from harness.results import provenance, write_json
+        from harness.results import write_check
 
         summary = {
             "backend": args.backend,
@@ -58,7 +58,7 @@ def cmd_gradcheck(args) -> int:
             "passed": ok,
             **sim_physics(sim),
         }
-        print(f"wrote {write_json(args.out, {'result': summary, 'provenance': provenance(_command())})}")
+        print(f"wrote {write_check(args.out, 'gradcheck', summary, _command())}")
     return 0 if ok else 1
 
 
@@ -66,7 +66,7 @@ def cmd_grad_growth(args) -> int:
     from pathlib import Path
 
     from harness.grad_growth import grad_growth, parse_variant
-    from harness.results import provenance, write_json
+    from harness.results import write_check
     from harness.train import read_config
 
     read_config(Path(args.run))
@@ -82,7 +82,7 @@ def cmd_grad_growth(args) -> int:
         raise BadInput(str(exc)) from None
     result = grad_growth(args.run, variants, windows=args.windows)
     if args.out:
-        print(f"wrote {write_json(args.out, {**result, 'provenance': provenance()})}")
+        print(f"wrote {write_check(args.out, 'grad-growth', result)}")
     return 0
 
 
@@ -116,7 +116,7 @@ def cmd_grad_paths(args) -> int:
     text = table(result)
     print(text)
     if args.out:
-        _write_result_and_table(args.out, result, text)
+        _write_result_and_table(args.out, "grad-paths", result, text)
     return 0
 
 
@@ -149,22 +149,26 @@ def cmd_parity(args) -> int:
     print(text)
     print(f"targets {'all hold' if result['passed'] else 'not all hold'}: {result['holds']}")
     if args.out:
-        stem = _write_result_and_table(args.out, result, text)
+        from pathlib import Path
+
+        stem = Path(args.out).with_suffix("") if args.out.endswith(".json") else Path(args.out)
         print(f"wrote {plot(result, stem.with_suffix('.png'))}")
+        _write_result_and_table(args.out, "parity", result, text)
+
     return 0
 
 
-def _write_result_and_table(out: str, result: dict, text: str):
-    """``STEM.json`` (the result and its provenance) and ``STEM.md`` (``text``), STEM being ``out``
-    without a ``.json`` suffix; returns STEM."""
+def _write_result_and_table(out: str, kind: str, result: dict, text: str):
+    """``STEM.md`` (``text``), then ``STEM.json`` (the check file; last, since a suite counts the check
+    done when it exists), STEM being ``out`` without a ``.json`` suffix; returns STEM."""
     from pathlib import Path
 
-    from harness.results import atomic_write_text, provenance, write_json
+    from harness.results import atomic_write_text, write_check
 
     out = Path(out)
     stem = out.with_suffix("") if out.suffix == ".json" else out
-    print(f"wrote {write_json(stem.with_suffix('.json'), {'result': result, 'provenance': provenance(_command())})}")
     print(f"wrote {atomic_write_text(stem.with_suffix('.md'), text)}")
+    print(f"wrote {write_check(stem.with_suffix('.json'), kind, result, _command())}")
     return stem
 
 
@@ -195,7 +199,7 @@ def cmd_contact_jacobians(args) -> int:
     text = table(result)
     print(text)
     if args.out:
-        _write_result_and_table(args.out, result, text)
+        _write_result_and_table(args.out, "contact-jacobians", result, text)
     return 0
 
 
@@ -203,7 +207,7 @@ def cmd_crosscheck(args) -> int:
     import json
 
     from harness.crosscheck import crosscheck, forward_crosscheck
-    from harness.results import provenance, write_json
+    from harness.results import write_check
 
     _validate_names(task=args.task)
     for name in args.backends:
@@ -213,11 +217,13 @@ def cmd_crosscheck(args) -> int:
     from tasks import task_class
 
     if task_class(args.task).layout.num_particles:  # soft bodies: forward rollouts (module docstring)
+        kind = "forward-crosscheck"
         report = forward_crosscheck(args.task, args.backends, num_envs=args.num_envs, steps=args.steps, seed=args.seed)
         print(json.dumps(report["pairs"], indent=2))
     else:
+        kind = "crosscheck"
         report = crosscheck(args.task, args.backends, num_envs=args.num_envs, steps=args.steps, seed=args.seed)
         print(json.dumps(report["segments"], indent=2))
     if args.out:
-        print(f"wrote {write_json(args.out, {**report, 'provenance': provenance()})}")
+        print(f"wrote {write_check(args.out, kind, report)}")
     return 0

@@ -120,7 +120,7 @@ FLAGS: dict[str, dict] = {
     "tolerance": {"type": _positive_float, "help": "max relative gradient error allowed (default 2e-2)"},
     "jobs": {
         "type": _positive_int,
-        "help": "jobs at once (bench: the spec's [suite] jobs; sweep: 1, in this process; ray: the cluster's CPUs)",
+        "help": "jobs at once (bench: the spec's [suite] jobs; sweep: 1; ray: the cluster's CPUs)",
     },
     "launcher": {
         "choices": ("local", "ray"),
@@ -252,7 +252,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add(p, "report", "runs", "out", required=("runs", "out"))
     p.add_argument("--no-plot", action="store_true")
 
-    p = sub.add_parser("sweep", help="train (or resume) and evaluate several algorithms and seeds, then report")
+    p = sub.add_parser("sweep", help="algorithms x seeds of one task and backend: a suite made in memory")
     names = ("backend", "task", "algos", "seeds", "epochs", "num_envs", "horizon", "device", "eval_seeds", "max_steps")
     _add(
         p,

@@ -14,7 +14,7 @@ from harness.cli.inputs import (
 
 
 def cmd_throughput(args) -> int:
-    from harness.results import provenance, write_json
+    from harness.results import write_check
     from harness.throughput import measure
 
     _validate_names(args.backend, args.task)
@@ -40,14 +40,14 @@ def cmd_throughput(args) -> int:
         print(f"  bare engine:         {result.bare_engine_steps_per_s:10.0f} env-steps/s (forward + backward)")
         print(f"  adapter / bare time: {result.overhead_ratio:10.3f} (forward + backward)")
     if args.out:
-        path = write_json(args.out, {"result": {**result.as_dict(), **sim_physics(sim)}, "provenance": provenance()})
+        path = write_check(args.out, "throughput", {**result.as_dict(), **sim_physics(sim)})
         print(f"wrote {path}")
     return 0
 
 
 def _grad_cost_only(sim, args) -> int:
     """``throughput --grad-cost-only WORLDS``: forward windows as usual, the step with gradients estimated."""
-    from harness.results import provenance, write_json
+    from harness.results import write_check
     from harness.throughput import forward_rate
 
     cost = sim.gradient_step_cost(args.grad_cost_only)
@@ -71,7 +71,7 @@ def _grad_cost_only(sim, args) -> int:
             "forward_backward_steps_per_s_estimated": with_grad,
             "gradient_step_cost": cost,
         }
-        print(f"wrote {write_json(args.out, {'result': result, 'provenance': provenance()})}")
+        print(f"wrote {write_check(args.out, 'throughput', result)}")
     return 0
 
 
@@ -94,7 +94,7 @@ def cmd_solver_probe(args) -> int:
 
 def cmd_peer(args) -> int:
     from harness.peers import PEER_TASKS, PEERS, PeerUnavailable, run_peer
-    from harness.results import provenance, write_json
+    from harness.results import write_check
 
     if args.peer not in PEERS:
         raise BadInput(f"unknown peer {args.peer!r}; choose from: {', '.join(PEERS)}")
@@ -106,12 +106,12 @@ def cmd_peer(args) -> int:
         result = run_peer(args.peer, args.task, words + list(args.peer_arg), python=args.python)
     except PeerUnavailable as exc:
         raise BadInput(str(exc)) from None
-    print(f"wrote {write_json(args.out, {**result, 'provenance': provenance()})}")
+    print(f"wrote {write_check(args.out, 'peer', result)}")
     return 0
 
 
 def cmd_fd_schemes(args) -> int:
-    from harness.results import atomic_write_text, provenance, write_json
+    from harness.results import atomic_write_text, write_check
 
     _validate_names("mujoco_warp", args.task)
     from tasks import task_class
@@ -135,12 +135,12 @@ def cmd_fd_schemes(args) -> int:
     )
     if prefix:  # the JSON last: a suite counts the check done when it exists
         print(f"wrote {atomic_write_text(prefix + '.md', markdown(report, _command()))}")
-        print(f"wrote {write_json(prefix + '.json', {**report, 'provenance': provenance()})}")
+        print(f"wrote {write_check(prefix + '.json', 'fd-schemes', report)}")
     return 0
 
 
 def cmd_scaling(args) -> int:
-    from harness.results import provenance, write_json
+    from harness.results import provenance, write_check
     from harness.scaling import scaling, write
 
     _validate_names(args.backend, args.task)
@@ -166,7 +166,8 @@ def cmd_scaling(args) -> int:
     prov = provenance()
     for path in write(rows, out, _command(), prov):
         print(f"wrote {path}")
-    print(f"wrote {write_json(out + '.json', {'rows': rows, 'provenance': prov})}")
+    result = {"backend": args.backend, "task": args.task, "rows": rows}
+    print(f"wrote {write_check(out + '.json', 'scaling', result)}")
     return 0
 
 

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import sys
-
 from harness.cli.inputs import (
     BadInput,
     _algo_config,
@@ -111,78 +109,46 @@ def cmd_report(args) -> int:
 
 
 def cmd_sweep(args) -> int:
+    """Algorithms x seeds of one task and backend: a suite spec made in memory, run by the suite's runner
+    (runs addressed and reused as the bench's, tables and plots beside them in OUT)."""
     from pathlib import Path
 
-    from harness.report import write_report
-    from harness.train import evaluate, resume, train
+    from harness.runner import run_suite
 
     _validate_names(args.backend, args.task)
     _check_device(args.device)
-    configs = {name: _algo_config(args, name) for name in args.algos}  # refuse bad input before any training
+    for name in args.algos:
+        _algo_config(args, name)  # refuse bad input before any training
     if not args.out.strip():
         raise BadInput("--out is empty: name a directory for the sweep")
-    if Path(args.out).exists() and not Path(args.out).is_dir():
-        raise BadInput(f"--out {args.out} is an existing file, not a directory")
-    if args.launcher != "local" or (args.jobs or 1) > 1:
-        return _sweep_on_launcher(args, configs)
-    runs = []
-    for name, cfg in configs.items():
-        for seed in args.seeds:
-            run = Path(args.out) / f"{args.task}_{args.backend}_{name}_s{seed}"
-            resuming = (run / "config.json").exists()
-            print(f"== {run.name}{' (resume)' if resuming else ''}", flush=True)
-            if resuming:
-                resume(run, args.epochs, command=_command())
-            else:
-                train(run, args.task, args.backend, cfg, args.epochs, seed=seed, device=args.device, command=_command())
-            evaluate(run, seeds=args.eval_seeds, max_steps=args.max_steps)
-            runs.append(run)
-    paths = write_report(runs, Path(args.out) / "summary", _command())
-    print(Path(paths[0]).read_text())
-    return 0
-
-
-def _sweep_on_launcher(args, configs: dict) -> int:
-    """The sweep's runs as jobs of the suite's runner: local processes (--jobs N) or Ray tasks. Each run
-    is one ``bench-run`` job in the sweep's folder; its log goes to OUT/logs."""
-    from pathlib import Path
-
-    from harness.bench import RunSpec, train_job
-    from harness.launchers import make_launcher
-    from harness.report import write_report
-    from harness.runner import run_jobs
-
     out = Path(args.out).resolve()
-    jobs = []
-    for name in configs:
-        for seed in args.seeds:
-            spec = RunSpec(
-                task=args.task,
-                backend=args.backend,
-                algo=name,
-                seed=seed,
-                epochs=args.epochs,
-                num_envs=args.num_envs,
-                horizon=args.horizon,
-                device=args.device,
-                eval_seeds=args.eval_seeds,
-                eval_max_steps=args.max_steps,
-            )
-            jobs.append(train_job(spec, out / f"{args.task}_{args.backend}_{name}_s{seed}"))
-    launcher = make_launcher(args.launcher, args.jobs, args.address, args.device, args.gpus_per_run)
-    try:
-        run_jobs(jobs, out, launcher.workers, "sweep", launcher=launcher)
-    finally:
-        launcher.close()
-    failed = [job.label for job in jobs if job.state != "done" and job.state != "reused"]
-    runs = [job.run_dir for job in jobs if job.state in ("done", "reused")]
-    if runs:
-        paths = write_report(runs, out / "summary", _command())
-        print(Path(paths[0]).read_text())
-    if failed:
-        print(f"{len(failed)} run(s) failed (logs in {out / 'logs'}): {', '.join(failed)}", file=sys.stderr)
-        return 1
-    return 0
+    if out.exists() and not out.is_dir():
+        raise BadInput(f"--out {args.out} is an existing file, not a directory")
+    evaluation = {"seeds": args.eval_seeds, **({"max_steps": args.max_steps} if args.max_steps else {})}
+    spec = {
+        "suite": {"name": out.name, "jobs": args.jobs or 1, "device": args.device},
+        "eval": evaluation,
+        "train": [
+            {
+                "backends": [args.backend],
+                "tasks": [args.task],
+                "algos": list(args.algos),
+                "seeds": list(args.seeds),
+                "horizons": [args.horizon],
+                "epochs": args.epochs,
+                "num_envs": args.num_envs,
+            }
+        ],
+    }
+    return run_suite(
+        spec=spec,
+        store=out.parent,
+        jobs=args.jobs,
+        command=_command(),
+        launcher=args.launcher,
+        address=args.address,
+        gpus_per_run=args.gpus_per_run,
+    )
 
 
 def cmd_bench(args) -> int:

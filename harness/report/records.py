@@ -14,9 +14,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from algorithms.config import ALGORITHMS
 from harness.results import RunError, read_metrics
 
-ALGO_ORDER = ("shac", "shac-tdfixed", "shac-tdadpt", "sapo", "sapo-tdfixed", "sapo-tdadpt")
+ALGO_ORDER = ALGORITHMS  # the order tables and plots list algorithms in
 VARIANT_SUFFIXES = ("-tdfixed", "-tdadpt")
 BACKEND_ORDER = ("newton", "mujoco_warp")
 SIM_TO_SIM_PREFIXES = ("eval_on_", "sim2sim_on_")  # `harness eval --backend` and the suite's sim-to-sim jobs
@@ -210,35 +211,22 @@ class CheckRecord:
     provenance: dict
 
 
-def _check_kind(name: str, result: dict) -> str:
-    """gradcheck / throughput / crosscheck / forward-crosscheck from the result's keys, else the file's prefix."""
-    if "max_rel_error" in result or "action_rel_error" in result:
-        return "gradcheck"
-    if "forward_steps_per_s" in result:
-        return "throughput"
-    if "segments" in result:
-        return "crosscheck"
-    if "gaps" in result and "holds" in result:
-        return "parity"
-    if "control_lifted" in result:
-        return "contact-jacobians"
-    if "skip_threshold" in result and "summary" in result:
-        return "grad-paths"
-    if "com" in result and "pairs" in result:
-        return "forward-crosscheck"
-    return name.split("_", 1)[0] if "_" in name else "unknown"
-
-
 def load_check(path: Path, stream=None) -> CheckRecord | None:
+    """A check file (:func:`harness.results.write_check`: ``{"kind", "result", "provenance"}``), or None
+    with one line when it is missing, damaged or not a check file of a known kind."""
+    from harness.results import CHECK_RESULT_KINDS
+
     payload = _read_json(Path(path), stream)
     if payload is None:
         if not Path(path).is_file():
             say(stream, f"skipped check {path}: no such file")
         return None
-    result = payload["result"] if isinstance(payload.get("result"), dict) else payload
-    result = {k: v for k, v in result.items() if k != "provenance"}
+    kind = payload.get("kind")
+    if kind not in CHECK_RESULT_KINDS or not isinstance(payload.get("result"), dict):
+        say(stream, f"skipped check {path}: not a check file (no known kind and result); re-make it")
+        return None
     provenance = payload.get("provenance") if isinstance(payload.get("provenance"), dict) else {}
-    return CheckRecord(path=Path(path), kind=_check_kind(Path(path).name, result), result=result, provenance=provenance)
+    return CheckRecord(path=Path(path), kind=kind, result=payload["result"], provenance=provenance)
 
 
 # -- grouping helpers -----------------------------------------------------------------------------
