@@ -68,6 +68,8 @@ GRID = (
         "fd_tolerance": 0.0,
     },
     {"fd_scheme": "forward", "fd_eps_state": 2.5e-4, "fd_eps_velocity": 3e-2},
+    {"fd_scheme": "one_sided", "fd_eps_state": 5e-4, "fd_eps_velocity": 1e-2},
+    {"fd_scheme": "one_sided", "fd_eps_state": 2.5e-4, "fd_eps_velocity": 1e-2},
 )
 #: the control step's rows: the adapter's default settings with the control step times each factor
 CONTROL_FACTORS = (0.01, 0.1, 10.0)

@@ -21,7 +21,7 @@ class ProgressLine:
 
     def __init__(self, stream=None, every: int = 1):
         self.stream = stream if stream is not None else sys.stdout
-        self.tty = self.stream.isatty()
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self.every, self.count = max(1, every), 0
 
     def show(self, text: str, final: bool = False) -> None:

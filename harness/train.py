@@ -392,6 +392,8 @@ def _run(
             raise
     if stop.signum is not None and algo.epoch < epochs:
         raise RunStopped(run_dir, algo.epoch, stop.signum)
+    names = [p.name for p in (config_path, metrics_path, ckpt_path, run_dir / INIT_CHECKPOINT) if p.exists()]
+    print(f"wrote {run_dir}: {', '.join(names)}", file=stream, flush=True)
     return run_dir
 
 
@@ -422,7 +424,8 @@ def evaluate(
         _read_checkpoint(run_dir / name)
     n = num_envs or 2 * cfg.num_envs
     results = {}
-    for name in (INIT_CHECKPOINT, checkpoint):
+    line, total, t0 = ProgressLine(stream), 2 * seeds, time.perf_counter()
+    for k, name in enumerate((INIT_CHECKPOINT, checkpoint)):
         per_seed = []
         for i in range(seeds):
             eval_seed = 10_000 + i  # disjoint from training seeds
@@ -453,7 +456,13 @@ def evaluate(
                     "mean_length": float(first_length.float().mean()),
                 }
             )
-            print(f"  {name}: eval seed {eval_seed}: return {per_seed[-1]['mean_return']:.1f}", file=stream, flush=True)
+            done = k * seeds + i + 1
+            elapsed = time.perf_counter() - t0
+            line.show(
+                f"  eval {done}/{total} ({name}, seed {eval_seed}): return {per_seed[-1]['mean_return']:.1f}"
+                f" · elapsed {duration(elapsed)} · ETA {duration(elapsed / done * (total - done))}",
+                final=done == total,
+            )
         means = torch.tensor([s["mean_return"] for s in per_seed])
         results["initial" if name == INIT_CHECKPOINT else "final"] = {
             "mean_return": float(means.mean()),
@@ -470,7 +479,8 @@ def evaluate(
         **results,
         "provenance": provenance(),
     }
-    write_json(Path(out) if out else run_dir / eval_file_name(backend, trained_on), payload)
+    written = write_json(Path(out) if out else run_dir / eval_file_name(backend, trained_on), payload)
+    print(f"wrote {written}", file=stream, flush=True)
     return payload
 
 

@@ -88,3 +88,26 @@ def test_throughput_verb_writes_a_result_with_its_command(tmp_path):
     assert result["overhead_ratio"] > 0
     assert payload["provenance"]["command"].startswith("python -m harness throughput --backend newton")
     assert payload["provenance"]["packages"]["newton"] == "1.8.0"
+
+
+@pytest.mark.parametrize(
+    "verb, flag, says",
+    [
+        ("eval", "--num-envs", "per evaluation seed"),
+        ("crosscheck", "--num-envs", "compared on every engine"),
+        ("solver-probe", "--max-steps", "control steps of each probe rollout"),
+        ("parity", "--max-steps", "random-policy episode"),
+        ("train", "--out", "run directory"),
+        ("sweep", "--out", "runs, logs, tables"),
+        ("grad-growth", "--windows", "replayed"),
+        ("throughput", "--windows", "the best is kept"),
+    ],
+)
+def test_a_shared_flags_help_says_what_it_means_in_that_verb(verb, flag, says, capsys):
+    """One flag, declared once, may mean different things per verb: each verb's help says its own."""
+    with pytest.raises(SystemExit):
+        main([verb, "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    start = text.index(flag + " ", text.index("options:"))  # its entry, not the usage line
+    assert says in text[start : start + 200], text[start : start + 200]
+    assert "(eval:" not in text and "grad-growth)" not in text  # no other verb's meaning leaks in

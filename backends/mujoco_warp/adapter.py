@@ -58,7 +58,10 @@ Gradients (:meth:`MujocoWarpSim.fd_jacobians`, :class:`_MujocoWarpStep`):
   along ``q`` itself is zero.
 * Schemes (option ``fd_scheme``): ``forward`` (the default), one-sided differences from the nominal
   world, ``(f(x + eps e_i) - f(x)) / eps``, 1 + P worlds per env (37 on the Ant, 49 on the Go2), or
-  ``central`` as above, 1 + 2P (73, 97).
+  ``central`` as above, 1 + 2P (73, 97), or ``one_sided`` on central's worlds: per env and coordinate
+  the central quotient where the forward and backward quotients agree, and where they disagree (a
+  contact made or broken inside the stencil, where a finite step's quotient is the jump over the step
+  and no derivative) the smaller of the two, the one-sided derivative on the side without the switch.
 * Steps, one per kind of coordinate: ``fd_eps_state`` (positions, metres and radians),
   ``fd_eps_velocity`` (velocities) and ``fd_eps_control`` (torques in N m, or PD targets in rad).
   Their defaults are the most accurate in contact, where training runs, against float64 MuJoCo C at
@@ -107,9 +110,12 @@ from simcore import (
     xyzw_to_wxyz,
 )
 
-FD_SCHEMES = ("central", "forward")  # finite-difference schemes of the ``fd_scheme`` option
+FD_SCHEMES = ("central", "forward", "one_sided")  # finite-difference schemes of the ``fd_scheme`` option
 #: each scheme's default position step (articulated tasks; module docstring, "Steps")
-FD_EPS_STATE = {"central": 5e-4, "forward": 2.5e-4}
+FD_EPS_STATE = {"central": 5e-4, "forward": 2.5e-4, "one_sided": 5e-4}
+#: ``one_sided``: a coordinate whose forward and backward quotients differ by more than this fraction of
+#: the larger has a switch (a contact made or broken) inside its stencil
+SWITCH_DISAGREEMENT = 0.5
 #: the default velocity step of both schemes
 FD_EPS_VELOCITY = 1e-2
 
@@ -372,7 +378,7 @@ class MujocoWarpSim(BatchedSim):
         for central differences -eps e_i (P rows)."""
         steps = self._fd_steps
         rows = [steps.new_zeros(1, steps.numel()), torch.diag(steps)]
-        if self.fd_scheme == "central":
+        if self.fd_scheme != "forward":
             rows.append(-torch.diag(steps))
         return torch.cat(rows)
 
@@ -381,9 +387,17 @@ class MujocoWarpSim(BatchedSim):
         num_coords = self._fd_steps.numel()
         steps = self._fd_steps.reshape(-1, *([1] * (y.dim() - 1)))
         plus = y[1 : 1 + num_coords]
+        if self.fd_scheme == "forward":
+            return (plus - y[:1]) / steps
         if self.fd_scheme == "central":
             return (plus - y[1 + num_coords :]) / (2.0 * steps)
-        return (plus - y[:1]) / steps
+        ahead, behind = (plus - y[:1]) / steps, (y[:1] - y[1 + num_coords :]) / steps
+        size_ahead, size_behind = ahead.norm(dim=-1, keepdim=True), behind.norm(dim=-1, keepdim=True)
+        switch = (ahead - behind).norm(dim=-1, keepdim=True) > SWITCH_DISAGREEMENT * torch.maximum(
+            size_ahead, size_behind
+        )
+        smaller = torch.where(size_ahead <= size_behind, ahead, behind)
+        return torch.where(switch, smaller, 0.5 * (ahead + behind))
 
     def _data_for(self, nworld: int) -> tuple[mjw.Data, dict[str, torch.Tensor]]:
         """A Warp ``Data`` with ``nworld`` worlds (cached) and torch views of the arrays we set and read."""

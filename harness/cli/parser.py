@@ -100,22 +100,19 @@ FLAGS: dict[str, dict] = {
     "task": {"help": "task name (see `list`)"},
     "algo": {"help": "one of: " + ", ".join(ALGORITHMS)},
     "algos": {"nargs": "+", "help": "algorithm presets to train, e.g. shac shac-tdadpt"},
-    "num_envs": {"type": _positive_int, "help": "parallel environments N (eval: per seed, default twice the run's)"},
+    "num_envs": {"type": _positive_int, "help": "parallel environments N"},
     "horizon": {"type": _positive_int, "help": "control steps per window h (the graph is cut after each)"},
     "device": {"default": "cpu", "help": "torch/warp device, e.g. cpu or cuda:0"},
     "seed": {"type": _int, "default": 0, "help": "random seed of the run (initial states, noise, weights)"},
     "seeds": {"type": _int, "nargs": "+", "default": [0], "help": "training seeds"},
     "steps": {"type": _positive_int, "default": 8, "help": "control steps in the differentiated rollout"},
-    "epochs": {"type": _positive_int, "help": "total epochs (with --resume: a new, larger total)"},
-    "out": {"help": "output path (a directory for runs, a file or prefix for results)"},
+    "epochs": {"type": _positive_int, "help": "training epochs"},
+    "out": {"help": "the result file to write (JSON)"},
     "run": {"help": "run directory written by `train`"},
     "runs": {"nargs": "+", "help": "run directories written by `train`"},
-    "windows": {
-        "type": _positive_int,
-        "help": "windows of h steps: timed per variant (throughput, the best is kept) or replayed (grad-growth)",
-    },
+    "windows": {"type": _positive_int, "help": "timed windows of h steps of each kind (the best is kept)"},
     "eval_seeds": {"type": _positive_int, "default": 10, "help": "evaluation seeds (10000, 10001, ...)"},
-    "max_steps": {"type": _positive_int, "help": "cap on steps per evaluation episode"},
+    "max_steps": {"type": _positive_int, "help": "cap on steps per evaluation episode (default: the task's)"},
     "checkpoint_every": {"type": _positive_int, "default": 1, "help": "epochs between checkpoints"},
     "tolerance": {"type": _positive_float, "help": "max relative gradient error allowed (default 2e-2)"},
     "jobs": {
@@ -157,10 +154,67 @@ VERB_DEFAULTS: dict[str, dict] = {
     "scaling": {"horizon": 8, "windows": 3},
 }
 
+# what a shared flag means in the verbs where FLAGS' words would not be true, in one place
+VERB_HELP: dict[str, dict[str, str]] = {
+    "gradcheck": {
+        "num_envs": "envs differenced at once",
+        "out": "the check's result file (JSON)",
+    },
+    "train": {
+        "epochs": "total epochs (with --resume: a new, larger total)",
+        "out": "the run directory to write",
+    },
+    "eval": {
+        "num_envs": "envs per evaluation seed (default: twice the run's)",
+        "out": "the evaluation file to write (default: RUN/eval.json)",
+    },
+    "report": {"out": "prefix of the tables (.md, .csv, _by_algo.csv) and the curves (.png)"},
+    "sweep": {"epochs": "epochs of every run", "out": "the sweep's directory: its runs, logs, tables and plots"},
+    "grad-growth": {"windows": "windows of the policy's trajectory replayed open-loop"},
+    "grad-paths": {
+        "epochs": "SHAC epochs whose windows are rolled out four ways",
+        "out": "the result file (JSON; its table beside it as .md)",
+    },
+    "crosscheck": {
+        "num_envs": "envs compared on every engine",
+        "steps": "control steps of each compared segment",
+    },
+    "parity": {
+        "num_envs": "envs per seed of the settle, probe and episode measurements",
+        "steps": "open-loop steps of the trajectory comparison",
+        "max_steps": "cap on steps of each random-policy episode",
+        "out": "the result file (JSON; its table .md and plot .png beside it)",
+    },
+    "contact-jacobians": {
+        "num_envs": "envs per batch of sampled states",
+        "out": "the result file (JSON; its table beside it as .md)",
+    },
+    "throughput": {"num_envs": "envs stepped at once in the timed windows", "horizon": "env steps per timed window"},
+    "fd-schemes": {
+        "num_envs": "envs per batch of compared states",
+        "windows": "timed steps with gradients (the best is kept)",
+        "out": "the result file (PREFIX.json; its table beside it as PREFIX.md)",
+    },
+    "scaling": {
+        "horizon": "env steps per timed window",
+        "windows": "timed windows per env count (the best is kept)",
+        "out": "prefix of the .csv, .png and .json written",
+    },
+    "scaling-plot": {"out": "the plot to write (.png)"},
+    "landscape": {"num_envs": "envs of the window whose losses are mapped"},
+    "solver-probe": {
+        "num_envs": "envs of the random-action rollout",
+        "max_steps": "control steps of each probe rollout",
+    },
+    "peer": {"num_envs": "envs of the peer's timed windows", "horizon": "env steps per timed window"},
+}
+
 
 def _add(p: argparse.ArgumentParser, verb: str, *names: str, required: tuple[str, ...] = ()) -> None:
     for name in names:
         spec = dict(FLAGS[name])
+        if name in VERB_HELP.get(verb, {}):
+            spec["help"] = VERB_HELP[verb][name]
         if name in VERB_DEFAULTS.get(verb, {}):
             spec["default"] = VERB_DEFAULTS[verb][name]
         if "default" in spec and spec["default"] is not None:

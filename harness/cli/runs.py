@@ -68,7 +68,7 @@ def cmd_train(args) -> int:
 def cmd_eval(args) -> int:
     from pathlib import Path
 
-    from harness.train import eval_file_name, evaluate, read_config
+    from harness.train import evaluate, read_config
 
     config = read_config(Path(args.run))
     if args.backend:
@@ -88,8 +88,6 @@ def cmd_eval(args) -> int:
         f"final policy:   mean return {result['final']['mean_return']:.1f} "
         f"(std over {args.eval_seeds} seeds {result['final']['std_over_seeds']:.1f})"
     )
-    written = args.out or Path(args.run) / eval_file_name(result["backend"], result["trained_on"])
-    print(f"wrote {written}")
     return 0
 
 

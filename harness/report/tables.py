@@ -295,18 +295,21 @@ def wall_time_table(runs: list[RunRecord]) -> pd.DataFrame:
 
 
 def throughput_table(checks: list[CheckRecord]) -> pd.DataFrame:
-    """Per throughput check file: env-steps/s forward, forward+backward, and of the bare engine."""
+    """Per throughput check file: env-steps/s forward, forward+backward, and of the bare engine; a peer
+    simulator's (``peer`` checks) beside them, its backend named ``PEER (peer)``."""
     rows = []
     for check in checks:
-        if check.kind != "throughput":
+        if check.kind not in ("throughput", "peer"):
             continue
         r = check.result
         measured = r.get("forward_backward_steps_per_s")
         estimated = r.get("forward_backward_steps_per_s_estimated")  # `throughput --grad-cost-only`
+        peer = check.kind == "peer"
         rows.append(
             {
                 "file": check.path.name,
-                "backend": r.get("backend"),
+                "backend": f"{r.get('peer')} (peer)" if peer else r.get("backend"),
+                "integrator": r.get("integrator"),
                 "task": r.get("task"),
                 "num_envs": r.get("num_envs"),
                 "horizon": r.get("horizon"),
@@ -324,6 +327,7 @@ def throughput_table(checks: list[CheckRecord]) -> pd.DataFrame:
     columns = [
         "file",
         "backend",
+        "integrator",
         "task",
         "num_envs",
         "horizon",
@@ -573,6 +577,34 @@ def check_summary(check: CheckRecord) -> str:
     if check.kind == "forward-crosscheck":
         _, gap = _pairs_summary(r.get("pairs", {}), ("", "com_distance_max"))
         return f"forward rollouts across backends: max centre-of-mass distance {fmt(gap)} m, {r.get('steps')} steps"
+    if check.kind == "scaling":
+        rows = [row for row in r.get("rows", []) if row.get("forward_backward_steps_per_s")]
+        if not rows:
+            return "no env count measured with gradients"
+        rates = ", ".join(f"{row['num_envs']}: {fmt(row['forward_backward_steps_per_s'])}" for row in rows)
+        return f"env-steps/s with gradients by env count: {rates}"
+    if check.kind == "fd-schemes":
+        rows = r.get("rows", [])
+        best = min(rows, key=lambda row: row.get("contact_error_median", math.inf), default=None)
+        if best is None:
+            return "no setting measured"
+        return (
+            f"{len(rows)} settings; most accurate in contact: {best.get('fd_scheme')}, position step "
+            f"{best.get('fd_eps_state')}, velocity step {best.get('fd_eps_velocity')}, median error "
+            f"{fmt(best.get('contact_error_median'))}"
+        )
+    if check.kind == "solver-probe":
+        runs = r.get("runs", [])
+        stable = sum(
+            (run.get("random_actions") or run.get("zero_actions") or {}).get("first_non_finite_step") is None
+            for run in runs
+        )
+        return f"{len(runs)} setting(s) probed, {stable} finite throughout"
+    if check.kind == "peer":
+        return (
+            f"{r.get('peer')}: {fmt(r.get('forward_steps_per_s'))} env-steps/s forward, "
+            f"{fmt(r.get('forward_backward_steps_per_s'))} with gradients"
+        )
     return "result keys: " + ", ".join(sorted(r)[:8])
 
 
