@@ -93,16 +93,24 @@ def _references(sim, engine: torch.Tensor, control: torch.Tensor, model) -> list
 
 
 def _errors(sim, engine: torch.Tensor, control: torch.Tensor, refs: list[np.ndarray]) -> list[dict]:
-    """Per env: the relative error of the step's whole Jacobian and of each kind's column block."""
+    """Per env: the relative error of the step's whole Jacobian and of each kind's column block, and
+    the ratio of its state gain to the reference's (:func:`harness.contact_jacobians.gains`)."""
+    from harness.contact_jacobians import gains
+
     _, jac_state, jac_control = sim.fd_jacobians(engine, control)
-    nv = sim.layout.nv
+    layout = sim.layout
+    nv = layout.nv
     blocks = {"position": slice(0, nv), "velocity": slice(nv, 2 * nv), "control": slice(2 * nv, None)}
+    position_cols = [j for j in range(nv) if not (layout.floating_base and 3 <= j < 6)]
+    velocity_cols = list(range(nv, 2 * nv))
     errors = []
     for i, ref in enumerate(refs):
         jac = np.concatenate((jac_state[i].numpy(), jac_control[i].numpy()), axis=1)
         row = {"all": float(np.linalg.norm(jac - ref) / np.linalg.norm(ref))}
         for kind, cols in blocks.items():
             row[kind] = float(np.linalg.norm(jac[:, cols] - ref[:, cols]) / np.linalg.norm(ref[:, cols]))
+        own = gains(jac[:, : 2 * nv], layout.nq, position_cols, velocity_cols)["state_gain"]
+        row["gain_ratio"] = own / gains(ref[:, : 2 * nv], layout.nq, position_cols, velocity_cols)["state_gain"]
         errors.append(row)
     return errors
 
@@ -198,6 +206,11 @@ def fd_schemes(
             "contact_states": int(contact.size),
             "contact_error_median": float(np.median(contact)) if contact.size else float("nan"),
             "contact_within_5pct": float(np.mean(contact <= 0.05)) if contact.size else float("nan"),
+            # a quotient across a contact switch is a jump over the step: a gain far above the reference's
+            "contact_spurious_gain_share": float(np.mean([e["gain_ratio"] > 2.0 for e in contact_errors]))
+            if contact.size
+            else float("nan"),
+            "contact_gain_ratio_max": max((e["gain_ratio"] for e in contact_errors), default=float("nan")),
             "contact_error_median_by_kind": {
                 kind: float(np.median([e[kind] for e in contact_errors])) if contact.size else float("nan")
                 for kind in KINDS
@@ -213,7 +226,8 @@ def fd_schemes(
             f"contact-free max {row['contact_free_error_max']:.1e}, "
             f"in contact median {row['contact_error_median']:.2g} ({row['contact_within_5pct']:.0%} within 5%; "
             + "/".join(f"{v:.2g}" for v in row["contact_error_median_by_kind"].values())
-            + " by position/velocity/control columns), "
+            + " by position/velocity/control columns; "
+            + f"{row['contact_spurious_gain_share']:.0%} of states with a gain over 2x the reference's), "
             f"sticking median {row['sticking_error_median']:.2g}, {seconds:.2f} s per step of {timing_envs} envs"
         )
         rows.append(row)
@@ -239,14 +253,17 @@ def markdown(report: dict, command: str) -> str:
         f"{report['reference']}. Contact-free: the max over {report['num_envs']} initial states lifted to 2 m. "
         "In contact: states sampled from random rollouts where MuJoCo C finds a contact; the median, the share "
         "within 5%, the median of each column block's own relative error (position, velocity, control columns), "
+        "the share of states whose state gain (the spectral norm of the state Jacobian) exceeds twice the "
+        "reference's (a quotient across a contact switch: a jump over the step) and the largest ratio, "
         "and the median over the states whose friction sticks with no contact made or broken. "
         f"Cost: one control step with gradients on the ground, best of {report['windows']}.",
         "",
         "| scheme | position step | velocity step | control step | warm start | tolerance | worlds/env "
         "| contact-free max "
         "| in contact: median | within 5% | by column: position / velocity / control "
+        "| gain over 2x the reference's (max ratio) "
         "| friction sticking: median | s per step | env-steps/s with grad |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in report["rows"]:
         tolerance = "model's" if r["fd_tolerance"] is None else f"{r['fd_tolerance']:g}"
@@ -256,6 +273,7 @@ def markdown(report: dict, command: str) -> str:
             f"| {tolerance} | {r['worlds_per_env']} | {r['contact_free_error_max']:.1e} "
             f"| {r['contact_error_median']:.2g} ({r['contact_states']}) | {r['contact_within_5pct']:.0%} "
             f"| {' / '.join(f'{v:.2g}' for v in r['contact_error_median_by_kind'].values())} "
+            f"| {r['contact_spurious_gain_share']:.0%} ({r['contact_gain_ratio_max']:.3g}) "
             f"| {r['sticking_error_median']:.2g} ({r['sticking_states']}) "
             f"| {r['seconds_per_step_with_grad']:.2f} ({r['timing_envs']} envs) "
             f"| {r['env_steps_per_s_with_grad']:.1f} |"

@@ -64,11 +64,11 @@ Gradients (:meth:`MujocoWarpSim.fd_jacobians`, :class:`_MujocoWarpStep`):
   and no derivative) the smaller of the two, the one-sided derivative on the side without the switch.
 * Steps, one per kind of coordinate: ``fd_eps_state`` (positions, metres and radians),
   ``fd_eps_velocity`` (velocities) and ``fd_eps_control`` (torques in N m, or PD targets in rad).
-  Their defaults are the most accurate in contact, where training runs, against float64 MuJoCo C at
-  the same cost (``harness fd-schemes``, run by the perf profile; docs/mujoco-warp.md): a position step
-  straddles a contact's switches the more often the larger it is, so positions take a small one
-  (:data:`FD_EPS_STATE`), while velocities and controls, on which a control step is nearly affine,
-  take larger ones (:data:`FD_EPS_VELOCITY`, 1 N m or 1e-2 rad) that lose fewer digits to float32.
+  Their defaults were chosen where training runs, in contact, against float64 MuJoCo C at the same
+  cost (``harness fd-schemes``, run by the perf profile; docs/mujoco-warp.md): a state step straddles
+  a contact's switches the more often the larger it is, and a quotient across a switch is a jump over
+  the step, no derivative, so positions and velocities take one small step (:data:`FD_EPS_STATE`);
+  controls take 1 N m or 1e-2 rad, the most accurate measured.
   The perturbed worlds' solver settings (``fd_warmstart``: the nominal world's warm start carried
   into them; ``fd_tolerance``: their solver tolerance) change no error measurably and cost more, so
   they stay off.
@@ -116,8 +116,6 @@ FD_EPS_STATE = {"central": 5e-4, "forward": 2.5e-4, "one_sided": 5e-4}
 #: ``one_sided``: a coordinate whose forward and backward quotients differ by more than this fraction of
 #: the larger has a switch (a contact made or broken) inside its stencil
 SWITCH_DISAGREEMENT = 0.5
-#: the default velocity step of both schemes
-FD_EPS_VELOCITY = 1e-2
 
 _ROOT_Q = 7  # free joint: position (3) + quaternion w, x, y, z (4)
 _ROOT_V = 6  # free joint: linear velocity (3, world frame) + angular velocity (3, body frame)
@@ -188,7 +186,7 @@ def _urdf_without_visuals(path) -> str:
 def fd_settings(task, options: dict) -> dict:
     """The finite-difference settings of ``task`` under adapter ``options``: each option's value, or
     its default (module docstring), validated. Articulated tasks: ``fd_scheme`` (forward),
-    ``fd_eps_state`` (positions), ``fd_eps_velocity`` (velocities),
+    ``fd_eps_state`` (positions), ``fd_eps_velocity`` (default: the positions' step),
     ``fd_eps_control``, ``fd_warmstart`` and ``fd_tolerance`` (the perturbed worlds' solves); soft
     bodies: central differences, ``fd_eps_state`` and ``fd_eps_control``."""
     soft = task.control_kind == ControlKind.TET_ACTIVATION
@@ -208,7 +206,7 @@ def fd_settings(task, options: dict) -> dict:
         settings = {
             "fd_scheme": scheme,
             "fd_eps_state": eps_state,
-            "fd_eps_velocity": float(options.get("fd_eps_velocity", FD_EPS_VELOCITY)),
+            "fd_eps_velocity": float(options.get("fd_eps_velocity", eps_state)),
             # 1 N m of torque, or 1e-2 rad of PD target (x kp = 0.3 N m on the Go2); module docstring
             "fd_eps_control": float(options.get("fd_eps_control", 1e-2 if position_control else 1.0)),
             "fd_warmstart": str(options.get("fd_warmstart", "zero")),
