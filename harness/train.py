@@ -284,9 +284,30 @@ def resume(
         raise RunError(f"--epochs {epochs} is fewer than the run's planned {config['epochs']}; give a larger total")
     source = _resume_source(run_dir)  # refuse an unreadable checkpoint or metrics file before anything is written
     read_metrics(run_dir / METRICS)
+    _remove_stale_checkpoint_temps(run_dir, stream)
     config["epochs"] = epochs or config["epochs"]
     config.setdefault("resumed", []).append(provenance(command))  # the original command stays
     return _run(run_dir, config, algo_config, checkpoint_every=checkpoint_every, stream=stream, source=source)
+
+
+def _remove_stale_checkpoint_temps(run_dir: Path, stream) -> None:
+    """Remove the temporary files of checkpoint writes whose writer is gone (a SIGKILL mid-write leaves
+    ``NAME.PID.tmp`` behind; the checkpoint it was replacing is intact)."""
+    for tmp in run_dir.glob("*.pt.*.tmp"):
+        pid = tmp.name.rsplit(".", 2)[-2]
+        if pid.isdigit() and not _alive(int(pid)):
+            tmp.unlink(missing_ok=True)
+            print(f"removed {tmp.name}: a checkpoint write that was interrupted", file=stream, flush=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def _resume_source(run_dir: Path) -> tuple[Path, dict] | None:

@@ -150,3 +150,21 @@ def test_a_signal_stops_at_an_epoch_boundary_with_a_checkpoint(tmp_path):
     assert err.strip().splitlines()[-1].startswith("stopped: SIGTERM: stopped at epoch"), err
     epoch = torch.load(run / "checkpoint.pt", map_location="cpu", weights_only=False)["epoch"]
     assert epoch == len(_rows(run))  # the checkpoint is the boundary after the last row, nothing half-done
+
+
+def test_a_resume_removes_the_temporary_file_of_an_interrupted_checkpoint_write(tmp_path):
+    """A SIGKILL during a checkpoint write leaves ``checkpoint.pt.PID.tmp``; the checkpoint it was
+    replacing is intact, and the resume removes the orphan (its writer is gone), nothing else."""
+    from harness.cli import main
+
+    run = tmp_path / "run"
+    assert main(["train", *TRAIN, "--epochs", "1", "--out", str(run)]) == 0
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()  # a pid that has finished: its temporary file is an orphan
+    orphan = run / f"checkpoint.pt.{dead.pid}.tmp"
+    orphan.write_bytes(b"")
+    live = run / f"checkpoint.pt.{os.getppid()}.tmp"  # a writer still running (not this process): left alone
+    live.write_bytes(b"")
+    assert main(["train", "--resume", str(run), "--epochs", "2"]) == 0
+    assert not orphan.exists() and live.exists()
+    assert len(_rows(run)) == 2
