@@ -143,6 +143,13 @@ CLI_CASES = [
         None,
         "unknown backend",
     ),
+    ("crosscheck one backend", ["crosscheck", "--task", "ant", "--backends", "newton"], None, "two or more different"),
+    (
+        "crosscheck a backend twice",
+        ["crosscheck", "--task", "ant", "--backends", "newton", "newton"],
+        None,
+        "two or more different",
+    ),
     (
         "sweep into an empty path",
         ["sweep", *ANT, "--algos", "shac", "--epochs", "1", "--out", ""],

@@ -212,6 +212,8 @@ def cmd_crosscheck(args) -> int:
     _validate_names(task=args.task)
     for name in args.backends:
         _validate_names(backend=name)
+    if len(set(args.backends)) < 2 or len(set(args.backends)) != len(args.backends):
+        raise BadInput(f"--backends needs two or more different backends to compare, got {' '.join(args.backends)}")
     if args.out:
         _check_output_file(args.out)
     from tasks import task_class
