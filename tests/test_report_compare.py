@@ -122,3 +122,10 @@ def test_curves_are_written_atomically(runs, tmp_path):
     png = tmp_path / "plots" / "cmp.png"
     assert paths[-1] == png and png.read_bytes().startswith(b"\x89PNG")
     assert sorted(p.name for p in png.parent.iterdir()) == ["cmp.csv", "cmp.md", "cmp.png", "cmp_by_algo.csv"]
+
+
+def test_a_run_given_twice_counts_once(runs, tmp_path):
+    out = tmp_path / "twice"
+    write_report([runs[0], *runs], out, "cmd", plot=False)
+    rows = list(csv.DictReader(open(out.with_suffix(".csv"))))
+    assert len(rows) == len(runs)

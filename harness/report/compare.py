@@ -161,8 +161,10 @@ def _iqm_cell(row: dict, col: str) -> str:
 
 
 def write_report(runs: list[Path], out_prefix: str | Path, command: str, plot: bool = True) -> list[Path]:
-    """``PREFIX.md`` (both tables), ``PREFIX.csv`` (per run), ``PREFIX_by_algo.csv``, ``PREFIX.png``."""
+    """``PREFIX.md`` (both tables), ``PREFIX.csv`` (per run), ``PREFIX_by_algo.csv``, ``PREFIX.png``. A run
+    folder given twice counts once."""
     out_prefix = Path(out_prefix)
+    runs = list({Path(r).resolve(): Path(r) for r in runs}.values())
     summaries = [summarize(r) for r in runs]
     md_path, csv_path = write_table(summaries, out_prefix, command)
     agg = aggregate(summaries)
