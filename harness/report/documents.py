@@ -347,7 +347,7 @@ def throughput_document(checks: list[CheckRecord]) -> Table:
         [
             Section(
                 throughput_table(checks),
-                _key_columns("task", "backend", "num_envs", "horizon", "windows", "file")
+                _key_columns("task", "backend", "integrator", "num_envs", "horizon", "windows", "file")
                 + [
                     ("forward env-steps/s", "forward_steps_per_s"),
                     (
