@@ -217,7 +217,7 @@ def _tangent_rows(jac: np.ndarray, next_engine: np.ndarray) -> np.ndarray:
 #: the contacts' switches (``harness fd-schemes``: median error in contact ~1e-3 against 0.1-0.5 at 2e-3);
 #: off the ground they cost float32 round-off: A measures ~1e-3 (central) and ~3.4e-3 (forward), against
 #: ~6e-5 and ~8e-4 with the former steps (1e-2 and 2e-3)
-CONTACT_FREE_BOUND = {"central": 2e-3, "forward": 5e-3}
+CONTACT_FREE_BOUND = {"central": 2e-3, "forward": 5e-3, "one_sided": 2e-3}  # one_sided: central without switches
 
 
 @pytest.mark.parametrize("scheme", FD_SCHEMES)
@@ -240,6 +240,22 @@ def test_step_jacobians_match_mujoco_transition_fd(ant, scheme):
         err_b = np.linalg.norm(b - b_ref) / np.linalg.norm(b_ref)
         print(f"{scheme} env {i}: Jacobian vs mjd_transitionFD, relative error A {err_a:.2e}, B {err_b:.2e}")
         assert err_a < CONTACT_FREE_BOUND[scheme] and err_b < CONTACT_FREE_BOUND[scheme], (err_a, err_b)
+
+
+def test_one_sided_takes_the_side_without_a_switch(ant):
+    """Where a coordinate's forward and backward quotients agree, one_sided is central; where one side
+    holds a jump (a contact switch inside the stencil), it is the other side's quotient."""
+    sim = make("mujoco_warp", ant, num_envs=1, seed=0, fd_scheme="one_sided")
+    steps = sim._fd_steps
+    p, d = steps.numel(), 3
+    slope = torch.arange(1.0, d + 1.0, dtype=torch.float64)
+    nominal = torch.zeros(1, 1, d, dtype=torch.float64)
+    plus = steps.reshape(p, 1, 1).double() * slope  # a linear function: f(x + eps e_i) = eps * slope
+    minus = -plus.clone()
+    plus[0] += 10.0  # a jump on the + side of coordinate 0
+    quotients = sim._fd_quotients(torch.cat((nominal, plus, minus)))
+    assert torch.allclose(quotients[0, 0], slope)  # the backward side, without the jump
+    assert torch.allclose(quotients[1:, 0], slope.expand(p - 1, d))  # no switch: the central quotient
 
 
 def test_the_float64_whole_step_reference_agrees_with_mjd_transition_fd(sim, ant):
