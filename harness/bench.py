@@ -49,6 +49,7 @@ import sys
 import tomllib
 from pathlib import Path
 
+from harness.peers import PEERS
 from harness.results import RunError
 
 PROFILES_DIR = Path(__file__).resolve().parent / "profiles"
@@ -75,9 +76,8 @@ GRADIENT_CHECK_KINDS = (
     "scaling",
     "fd-schemes",
 )
-#: kinds measured on one backend only (the verb's own), and the peer simulators ``peer`` measures
+#: kinds measured on one backend only (the verb's own)
 ONLY_BACKEND = {"fd-schemes": "mujoco_warp"}
-PEERS = ("rewarped",)
 
 # Seconds per env step of a training epoch (simulation with gradients and the updates) on this 2-core
 # CPU, from the runs in results/ (docs/cluster.md). Only the first ETA uses them: finished jobs correct them.
@@ -490,7 +490,10 @@ def plan(data: dict, store: Path) -> list[Job]:
             raise RunError(f"{where}: kind must be one of {', '.join(CHECK_KINDS)}, got {kind!r}")
         blist = _names(block.get("backends", []), f"{where} backends")
         for b in blist:
-            _known(b, PEERS if kind == "peer" else known["backends"], "peer" if kind == "peer" else "backend", where)
+            if kind == "peer":
+                _known(b, list(PEERS), "peer", where)
+            else:
+                _known(b, known["backends"], "backend", where)
             if kind in ONLY_BACKEND and b != ONLY_BACKEND[kind]:
                 raise RunError(f"{where}: {kind} measures {ONLY_BACKEND[kind]} only, not {b!r}")
         for task in _names(block.get("tasks", []), f"{where} tasks"):
