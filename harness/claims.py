@@ -54,7 +54,8 @@ def _start_ticks(pid: int) -> int | None:
     return int(stat.rsplit(")", 1)[1].split()[19])
 
 
-def _alive(pid: int, start: int | None) -> bool:
+def process_alive(pid: int, start: int | None = None) -> bool:
+    """Whether process ``pid`` runs on this machine (and, given its ``start`` ticks, is that same process)."""
     if Path("/proc").is_dir():
         now = _start_ticks(pid)
         return now is not None and (start is None or now == start)
@@ -127,7 +128,7 @@ class Claim:
         except ValueError:
             info = None  # created an instant ago and not yet written: judge it by its heartbeat alone
         if info and info.get("machine") == MACHINE:
-            return not _alive(int(info["pid"]), info.get("start_ticks"))
+            return not process_alive(int(info["pid"]), info.get("start_ticks"))
         first_seen = self._watched.setdefault((generation, mtime), time.monotonic())
         return time.monotonic() - first_seen > self.stale_s
 

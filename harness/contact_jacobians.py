@@ -169,14 +169,18 @@ def gains(state_jac: np.ndarray, nq: int, position_cols: list[int], velocity_col
     }
 
 
+def tangent_gain_columns(layout) -> tuple[list[int], list[int]]:
+    """MuJoCo-Warp's tangent state columns that :func:`gains` reads: positions without the root's
+    rotation (tangent 3:6; Newton's columns leave out its quaternion), then velocities."""
+    nv = layout.nv
+    return [j for j in range(nv) if not (layout.floating_base and 3 <= j < 6)], list(range(nv, 2 * nv))
+
+
 def _mujoco_warp_rows(sim, model, q, qd, actions, progress) -> list[dict]:
     from backends.mujoco_warp.reference import float64_step_jacobians
 
     layout = sim.layout
-    nv = layout.nv
-    # tangent columns: positions then velocities; the root's rotation (tangent 3:6) left out, as Newton's
-    position_cols = [j for j in range(nv) if not (layout.floating_base and 3 <= j < 6)]
-    velocity_cols = list(range(nv, 2 * nv))
+    position_cols, velocity_cols = tangent_gain_columns(layout)
     rows = []
     for count, (qb, qdb, ab) in _batches(sim.num_envs, q, qd, actions):
         engine = sim.state_from_generalized(qb, qdb).engine.detach()

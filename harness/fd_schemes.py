@@ -83,34 +83,38 @@ def control_rows(task, factors=CONTROL_FACTORS) -> tuple[dict, ...]:
     return tuple({"fd_scheme": default["fd_scheme"], "fd_eps_control": default["fd_eps_control"] * f} for f in factors)
 
 
-def _references(sim, engine: torch.Tensor, control: torch.Tensor, model) -> list[np.ndarray]:
-    """Per env: the float64 reference Jacobian (state and control columns) of its control step."""
+def _references(sim, engine: torch.Tensor, control: torch.Tensor, model) -> list[tuple[np.ndarray, float]]:
+    """Per env: the float64 reference Jacobian (state and control columns) of its control step, and its
+    state gain (:func:`harness.contact_jacobians.gains`)."""
+    from harness.contact_jacobians import gains, tangent_gain_columns
+
+    position_cols, velocity_cols = tangent_gain_columns(sim.layout)
     refs = []
     for i in range(engine.shape[0]):
         _, ref_state, ref_control = float64_step_jacobians(sim, engine[i], control[i], model=model)
-        refs.append(np.concatenate((ref_state, ref_control), axis=1))
+        gain = gains(ref_state, sim.layout.nq, position_cols, velocity_cols)["state_gain"]
+        refs.append((np.concatenate((ref_state, ref_control), axis=1), gain))
     return refs
 
 
-def _errors(sim, engine: torch.Tensor, control: torch.Tensor, refs: list[np.ndarray]) -> list[dict]:
+def _errors(sim, engine: torch.Tensor, control: torch.Tensor, refs: list[tuple[np.ndarray, float]]) -> list[dict]:
     """Per env: the relative error of the step's whole Jacobian and of each kind's column block, and
-    the ratio of its state gain to the reference's (:func:`harness.contact_jacobians.gains`)."""
-    from harness.contact_jacobians import gains
+    the ratio of its state gain to the reference's."""
+    from harness.contact_jacobians import gains, tangent_gain_columns
 
     _, jac_state, jac_control = sim.fd_jacobians(engine, control)
     layout = sim.layout
     nv = layout.nv
     blocks = {"position": slice(0, nv), "velocity": slice(nv, 2 * nv), "control": slice(2 * nv, None)}
-    position_cols = [j for j in range(nv) if not (layout.floating_base and 3 <= j < 6)]
-    velocity_cols = list(range(nv, 2 * nv))
+    position_cols, velocity_cols = tangent_gain_columns(layout)
     errors = []
-    for i, ref in enumerate(refs):
+    for i, (ref, ref_gain) in enumerate(refs):
         jac = np.concatenate((jac_state[i].numpy(), jac_control[i].numpy()), axis=1)
         row = {"all": float(np.linalg.norm(jac - ref) / np.linalg.norm(ref))}
         for kind, cols in blocks.items():
             row[kind] = float(np.linalg.norm(jac[:, cols] - ref[:, cols]) / np.linalg.norm(ref[:, cols]))
-        own = gains(jac[:, : 2 * nv], layout.nq, position_cols, velocity_cols)["state_gain"]
-        row["gain_ratio"] = own / gains(ref[:, : 2 * nv], layout.nq, position_cols, velocity_cols)["state_gain"]
+        own = gains(jac_state[i].numpy(), layout.nq, position_cols, velocity_cols)["state_gain"]
+        row["gain_ratio"] = own / ref_gain
         errors.append(row)
     return errors
 

@@ -37,6 +37,7 @@ import torch
 
 from algorithms.actor_critic import FirstOrderActorCritic
 from algorithms.config import AlgoConfig
+from harness.claims import process_alive
 from harness.envs import make_env, run_task
 from harness.progress import ProgressLine, duration
 from harness.results import (
@@ -295,19 +296,9 @@ def _remove_stale_checkpoint_temps(run_dir: Path, stream) -> None:
     ``NAME.PID.tmp`` behind; the checkpoint it was replacing is intact)."""
     for tmp in run_dir.glob("*.pt.*.tmp"):
         pid = tmp.name.rsplit(".", 2)[-2]
-        if pid.isdigit() and not _alive(int(pid)):
+        if pid.isdigit() and not process_alive(int(pid)):
             tmp.unlink(missing_ok=True)
             print(f"removed {tmp.name}: a checkpoint write that was interrupted", file=stream, flush=True)
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 def _resume_source(run_dir: Path) -> tuple[Path, dict] | None:

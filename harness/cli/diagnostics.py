@@ -11,6 +11,7 @@ from harness.cli.inputs import (
     _command,
     _make_sim,
     _validate_names,
+    out_stem,
     sim_physics,
 )
 
@@ -151,8 +152,7 @@ def cmd_parity(args) -> int:
     if args.out:
         from pathlib import Path
 
-        stem = Path(args.out).with_suffix("") if args.out.endswith(".json") else Path(args.out)
-        print(f"wrote {plot(result, stem.with_suffix('.png'))}")
+        print(f"wrote {plot(result, Path(out_stem(args.out)).with_suffix('.png'))}")
         _write_result_and_table(args.out, "parity", result, text)
 
     return 0
@@ -160,16 +160,14 @@ def cmd_parity(args) -> int:
 
 def _write_result_and_table(out: str, kind: str, result: dict, text: str):
     """``STEM.md`` (``text``), then ``STEM.json`` (the check file; last, since a suite counts the check
-    done when it exists), STEM being ``out`` without a ``.json`` suffix; returns STEM."""
+    done when it exists), STEM being ``out`` without a ``.json`` suffix (:func:`out_stem`)."""
     from pathlib import Path
 
     from harness.results import atomic_write_text, write_check
 
-    out = Path(out)
-    stem = out.with_suffix("") if out.suffix == ".json" else out
+    stem = Path(out_stem(out))
     print(f"wrote {atomic_write_text(stem.with_suffix('.md'), text)}")
     print(f"wrote {write_check(stem.with_suffix('.json'), kind, result, _command())}")
-    return stem
 
 
 def cmd_contact_jacobians(args) -> int:

@@ -96,6 +96,12 @@ def _algo_config(args, name: str):
         raise BadInput(f"bad configuration: {exc}") from None
 
 
+def out_stem(out: str) -> str:
+    """``--out`` without a ``.json`` suffix: the stem of the files a verb writes beside its JSON (``.md``,
+    ``.png``, ``.csv``); a suite passes the JSON's path, a user may pass either."""
+    return out.removesuffix(".json")
+
+
 def sim_physics(sim) -> dict:
     """What a check's result file says about the physics it ran: preset, constants, integrator, mapping."""
     return {**sim.task.physics_record(), "integrator": sim.integrator, "physics_mapping": sim.physics_mapping()}

@@ -9,6 +9,7 @@ from harness.cli.inputs import (
     _command,
     _make_sim,
     _validate_names,
+    out_stem,
     sim_physics,
 )
 
@@ -118,7 +119,7 @@ def cmd_fd_schemes(args) -> int:
 
     if task_class(args.task).layout.num_particles:
         raise BadInput("fd-schemes compares schemes on articulated tasks (ant, go2); soft bodies have no C reference")
-    prefix = args.out.removesuffix(".json") if args.out else None  # PREFIX or PREFIX.json: both files
+    prefix = out_stem(args.out) if args.out else None  # PREFIX or PREFIX.json: both files
     if prefix:
         _check_output_file(prefix + ".json")
     from harness.fd_schemes import fd_schemes, markdown
@@ -148,7 +149,7 @@ def cmd_scaling(args) -> int:
     if sorted(args.envs) != list(args.envs) or len(set(args.envs)) != len(args.envs):
         raise BadInput(f"--envs must be distinct and increasing, got {args.envs}")
     suffix = ("" if args.device == "cpu" else "_cuda") + ("_forward" if args.forward_only else "")
-    out = args.out.removesuffix(".json") if args.out else f"results/scaling_{args.backend}_{args.task}{suffix}"
+    out = out_stem(args.out) if args.out else f"results/scaling_{args.backend}_{args.task}{suffix}"
     _check_output_file(out + ".csv")
     print(f"scaling {args.backend}/{args.task}: envs {args.envs}, {args.horizon}-step windows, best of {args.windows}")
     rows = scaling(
