@@ -17,11 +17,12 @@
   peer simulators, ``rewarped``), ``tasks`` and the verb's extra ``args`` (a list of command-line
   words), optionally ``[check.per_task.TASK]`` with ``args``;
 * ``[[sim_to_sim]]``: runs of the train grid (``task``, ``train_backend``, ``algos``, ``seeds``,
-  ``horizon``, ``preset``) evaluated on ``train_backend`` and ``eval_backend`` with one protocol
-  (``eval_seeds``, ``num_envs``, ``max_steps``);
-* ``[[landscape]]``: runs of the grid (``task``, ``backend``, ``algos``, ``seeds``, ``horizon``,
-  ``preset``) whose h-step and TD-lambda actor losses are mapped over a ``grid`` x ``grid`` plane
-  (``span``, ``num_envs``).
+  ``horizon``, ``preset``, and ``epochs``/``train_num_envs`` where two train blocks share the rest)
+  evaluated on ``train_backend`` and ``eval_backend`` with one protocol (``eval_seeds``, ``num_envs``,
+  ``max_steps``);
+* ``[[landscape]]``: runs of the grid (selected as for sim-to-sim, ``backend`` for ``train_backend``)
+  whose h-step and TD-lambda actor losses are mapped over a ``grid`` x ``grid`` plane (``span``,
+  ``num_envs``).
 
 Layout: ``STORE/NAME/`` (``--store``, default ``results/bench``; NAME is the spec's ``[suite] name``)
 holds the tables and plots, ``runs/``, ``checks/`` and ``logs/``. Give two specs the same name (or
@@ -474,12 +475,8 @@ def plan(data: dict, store: Path) -> list[Job]:
     jobs: list[Job] = []
 
     runs = _train_grid(data, device, known)
-    by_identity = {}
-
     for run in runs:
-        job = train_job(run, store / "runs" / run.dirname)
-        jobs.append(job)
-        by_identity[(run.task, run.backend, run.algo, run.seed, run.horizon, run.preset)] = job
+        jobs.append(train_job(run, store / "runs" / run.dirname))
 
     check_args: list[list[str]] = []  # each check job's extra words, in order
     for i, block in enumerate(data.get("check", [])):
@@ -524,27 +521,45 @@ def plan(data: dict, store: Path) -> list[Job]:
     _distinct_labels(checks, check_args)
     jobs = [j for j in trains if j.run.seed == first_seed] + checks + [j for j in trains if j.run.seed != first_seed]
 
+    train_jobs = [j for j in jobs if j.kind == "train"]
+
     def select(block: dict, where: str, backend_key: str) -> list[Job]:
+        """The grid's runs an analysis block names. ``epochs`` and ``train_num_envs`` tell apart runs of
+        two [[train]] blocks that share task, backend, algorithm, seed, horizon and preset; a block that
+        would select both is refused rather than silently given one of them."""
+        epochs, train_envs = block.get("epochs"), block.get("train_num_envs")
         found = [
             job
-            for (task, backend, algo, seed, horizon, preset), job in by_identity.items()
-            if task == block.get("task")
-            and backend == block.get(backend_key)
-            and algo in _names(block.get("algos", [algo]), f"{where} algos")
-            and seed in [int(s) for s in _names(block.get("seeds", [seed]), f"{where} seeds")]
-            and horizon == int(block.get("horizon", horizon))
-            and preset == _preset(task, block.get("preset"), where)
+            for job in train_jobs
+            if job.run.task == block.get("task")
+            and job.run.backend == block.get(backend_key)
+            and job.run.algo in _names(block.get("algos", [job.run.algo]), f"{where} algos")
+            and job.run.seed in [int(s) for s in _names(block.get("seeds", [job.run.seed]), f"{where} seeds")]
+            and job.run.horizon == int(block.get("horizon", job.run.horizon))
+            and job.run.preset == _preset(job.run.task, block.get("preset"), where)
+            and (epochs is None or job.run.epochs == int(epochs))
+            and (train_envs is None or job.run.num_envs == int(train_envs))
         ]
         if not found:
             raise RunError(f"{where}: selects no run of the [[train]] grid; it needs runs to analyse")
+        seen: dict[tuple, Job] = {}
+        for job in found:
+            r = job.run
+            twin = seen.setdefault((r.algo, r.seed), job)
+            if twin is not job:
+                raise RunError(
+                    f"{where}: {r.algo} seed {r.seed} matches runs of two [[train]] blocks "
+                    f"({twin.run.epochs} epochs x {twin.run.num_envs} envs and {r.epochs} x {r.num_envs}); "
+                    "name epochs and/or train_num_envs to choose one"
+                )
         return found
 
     for i, block in enumerate(data.get("sim_to_sim", [])):
         where = f"[[sim_to_sim]] #{i + 1}"
         _expect(
             block,
-            {"task", "train_backend", "eval_backend", "algos", "seeds", "horizon", "preset"}
-            | {"eval_seeds", "num_envs", "max_steps"},
+            {"task", "train_backend", "eval_backend", "algos", "seeds", "horizon", "preset", "epochs"}
+            | {"train_num_envs", "eval_seeds", "num_envs", "max_steps"},
             where,
         )
         _known(block.get("eval_backend"), known["backends"], "backend", where)
@@ -575,7 +590,12 @@ def plan(data: dict, store: Path) -> list[Job]:
 
     for i, block in enumerate(data.get("landscape", [])):
         where = f"[[landscape]] #{i + 1}"
-        _expect(block, {"task", "backend", "algos", "seeds", "horizon", "grid", "span", "num_envs", "preset"}, where)
+        _expect(
+            block,
+            {"task", "backend", "algos", "seeds", "horizon", "grid", "span", "num_envs", "preset", "epochs"}
+            | {"train_num_envs"},
+            where,
+        )
         for source in select(block, where, "backend"):
             grid, span = int(block.get("grid", 40)), float(block.get("span", 1.0))
             num_envs = int(block.get("num_envs", source.run.num_envs))

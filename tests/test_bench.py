@@ -117,6 +117,25 @@ def test_a_block_may_choose_a_physics_preset(tmp_path):
     assert rewarped.key != default.key
 
 
+def test_an_analysis_block_chooses_between_two_train_blocks_or_is_refused(tmp_path):
+    """Two [[train]] blocks that share task, backend, algorithm, seed and horizon but not epochs: a
+    sim-to-sim block selects by ``epochs``/``train_num_envs``, and without them names the clash."""
+    grid = (
+        "[suite]\nname='x'\n"
+        "[[train]]\nbackends=['newton']\ntasks=['ant']\nalgos=['shac']\nepochs=3\nhorizons=[8]\nnum_envs=4\n"
+        "[[train]]\nbackends=['newton']\ntasks=['ant']\nalgos=['shac']\nepochs=5\nhorizons=[8]\nnum_envs=8\n"
+        "[[sim_to_sim]]\ntask='ant'\ntrain_backend='newton'\neval_backend='newton'\nhorizon=8\n"
+    )
+    with pytest.raises(RunError, match="matches runs of two"):
+        plan(load_spec(spec_file=str(_write(tmp_path, grid)))[0], tmp_path)
+    for choice, epochs in (("epochs=5\n", 5), ("train_num_envs=4\n", 3)):
+        data, _ = load_spec(spec_file=str(_write(tmp_path, grid + choice)))
+        jobs = plan(data, tmp_path)
+        trains = {j.label: j.run for j in jobs if j.kind == "train"}
+        sources = {trains[j.after[0]] for j in jobs if j.kind == "sim_to_sim"}
+        assert [r.epochs for r in sources] == [epochs]
+
+
 def test_bad_specs_fail_with_one_line(tmp_path):
     cases = {
         "[suite]\nname='x'\n[[train]]\nbackends=['newton']\ntasks=['ant']\nalgos=['shac']\nepoch=3\n": "unknown key",
