@@ -4,7 +4,8 @@
 ``harness/profiles/``) or ``--spec FILE.toml`` (a user's own, same format). A spec names:
 
 * ``[suite]``: ``name``, ``description``, ``jobs`` (processes at once; one per core on a CPU machine,
-  since a Warp CPU kernel runs on one thread), ``device``;
+  since a Warp CPU kernel runs on one thread), ``device``, ``order`` (``"seed"``, the default: training
+  runs start seed-major across blocks; ``"block"``: each [[train]] block's seeds before the next's);
 * ``[eval]``: the evaluation protocol of every training run (``seeds``, optional ``num_envs``, default
   2N, and ``max_steps``);
 * ``[[train]]``: a grid ``backends x tasks x algos x seeds x horizons`` with ``epochs``, ``num_envs``,
@@ -321,8 +322,10 @@ def _train_grid(data: dict, device: str, known: dict) -> list[RunSpec]:
                 seen.add(run.key)
                 runs.append(run)
     # seed-major across blocks too (a stable sort keeps the blocks' order within a seed): wherever a long
-    # suite stops, every block and algorithm has the same number of seeds and every table has rows
-    runs.sort(key=lambda r: r.seed)
+    # suite stops, every block and algorithm has the same number of seeds and every table has rows.
+    # order = "block": each block's seeds before the next block's (a suite whose first block decides)
+    if data["suite"].get("order", "seed") == "seed":
+        runs.sort(key=lambda r: r.seed)
     return runs
 
 
@@ -470,7 +473,9 @@ def plan(data: dict, store: Path) -> list[Job]:
 
     known = {"backends": backends.available(), "tasks": tasks.available(), "algos": list(ALGORITHMS)}
     suite = data["suite"]
-    _expect(suite, {"name", "description", "jobs", "device"}, "[suite]")
+    _expect(suite, {"name", "description", "jobs", "device", "order"}, "[suite]")
+    if suite.get("order", "seed") not in ("seed", "block"):
+        raise RunError(f"[suite] order must be 'seed' or 'block', got {suite['order']!r}")
     device = suite.get("device", "cpu")
     jobs: list[Job] = []
 
@@ -519,7 +524,11 @@ def plan(data: dict, store: Path) -> list[Job]:
     trains = [j for j in jobs if j.kind == "train"]
     checks = [j for j in jobs if j.kind in CHECK_KINDS]
     _distinct_labels(checks, check_args)
-    jobs = [j for j in trains if j.run.seed == first_seed] + checks + [j for j in trains if j.run.seed != first_seed]
+    if data["suite"].get("order", "seed") == "block":
+        jobs = trains + checks
+    else:
+        first = [j for j in trains if j.run.seed == first_seed]
+        jobs = first + checks + [j for j in trains if j.run.seed != first_seed]
 
     train_jobs = [j for j in jobs if j.kind == "train"]
 

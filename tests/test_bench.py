@@ -58,7 +58,7 @@ def _env() -> dict:
 def test_every_shipped_profile_plans(tmp_path):
     """Every shipped profile parses and expands to jobs (names, algorithms and configs all valid)."""
     counts = {}
-    for profile in ("smoke", "standard", "perf", "paper"):
+    for profile in ("smoke", "standard", "perf", "paper", "protocol"):
         data, _ = load_spec(profile=profile)
         jobs = plan(data, tmp_path)
         counts[profile] = sum(j.kind == "train" for j in jobs)
@@ -66,6 +66,23 @@ def test_every_shipped_profile_plans(tmp_path):
     # the paper's protocol: 6 algorithms x 3 tasks x 10 seeds x 5 horizons on Newton, 6 x 2 x 10 on MuJoCo-Warp
     assert counts["paper"] == 6 * 3 * 10 * 5 + 6 * 2 * 10
     assert counts["smoke"] < counts["standard"] < counts["paper"]
+    assert counts["protocol"] == 3 * 5 + 2 * 5
+
+
+def test_block_order_runs_each_blocks_seeds_before_the_next_block(tmp_path):
+    grid = (
+        "[suite]\nname='x'\n{order}"
+        "[[train]]\nbackends=['newton']\ntasks=['ant']\nalgos=['shac']\nepochs=3\nseeds=[0,1]\nnum_envs=4\n"
+        "[[train]]\nbackends=['newton']\ntasks=['go2']\nalgos=['shac']\nepochs=3\nseeds=[0,1]\nnum_envs=4\n"
+    )
+    orders = {}
+    for order in ("", "order='seed'\n", "order='block'\n"):
+        data, _ = load_spec(spec_file=str(_write(tmp_path, grid.format(order=order))))
+        orders[order] = [(j.run.task, j.run.seed) for j in plan(data, tmp_path)]
+    assert orders[""] == orders["order='seed'\n"] == [("ant", 0), ("go2", 0), ("ant", 1), ("go2", 1)]
+    assert orders["order='block'\n"] == [("ant", 0), ("ant", 1), ("go2", 0), ("go2", 1)]
+    with pytest.raises(RunError, match="order must be"):
+        plan(load_spec(spec_file=str(_write(tmp_path, grid.format(order="order='random'\n"))))[0], tmp_path)
 
 
 def test_run_address_is_its_full_config():

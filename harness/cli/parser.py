@@ -462,7 +462,11 @@ def build_parser() -> argparse.ArgumentParser:
         "bench",
         help="the benchmark suite: checks, training grid, sim-to-sim, loss landscapes, then tables and plots",
     )
-    p.add_argument("--profile", help="smoke (tox -e bench), standard (results/) or paper (a cluster's worth)")
+    p.add_argument(
+        "--profile",
+        help="smoke (tox -e bench), standard (results/), perf (speed), protocol (the paper's Ant protocol) "
+        "or paper (a cluster's worth)",
+    )
     p.add_argument("--spec", help="a TOML spec of your own (format: harness/bench.py and README)")
     p.add_argument(
         "--store",
