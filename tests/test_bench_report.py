@@ -248,6 +248,69 @@ def test_returns_iqm_ci_and_improvement(suite):
     assert tdadpt["improvement_ci_high"] == pytest.approx(independent.high)
 
 
+def test_probability_of_improvement_is_rliables(suite):
+    from rliable import metrics
+
+    returns = pd.read_csv(suite["out"] / "returns.csv")
+    tdadpt = _row(returns, task="ant", backend="newton", algo="shac-tdadpt", horizon=16)
+    expected = metrics.probability_of_improvement(np.array(TDADPT_FINALS)[:, None], np.array(SHAC_FINALS)[:, None])
+    assert tdadpt["p_improvement"] == pytest.approx(expected) == pytest.approx(0.8)  # 20 of 25 pairs
+    assert 0.0 <= tdadpt["p_improvement_ci_low"] <= 0.8 <= tdadpt["p_improvement_ci_high"] <= 1.0
+    assert pd.isna(_row(returns, task="ant", backend="newton", algo="shac", horizon=16)["p_improvement"])
+
+
+def test_aggregate_normalises_each_task_by_untrained_and_best(suite):
+    aggregate = pd.read_csv(suite["out"] / "aggregate.csv")
+    newton = aggregate[aggregate["backend"] == "newton"].set_index("algo")
+    # the Ant on Newton at h 16 (5 seeds each): untrained -50, best IQM 12 (shac-tdadpt)
+    scale = lambda x: (np.array(x) - -50.0) / (12.0 - -50.0)  # noqa: E731
+    assert newton.loc["shac-tdadpt", "iqm_normalised"] == pytest.approx(1.0)
+    assert newton.loc["shac", "iqm_normalised"] == pytest.approx(stats.trim_mean(scale(SHAC_FINALS), 0.25))
+    assert newton.loc["shac-tdadpt", "p_improvement"] == pytest.approx(0.8)  # order is kept by normalising
+    assert "N 4, 4 epochs, h 16" in newton.loc["shac", "settings"]
+
+
+def test_field_statistics_match_rliable_library():
+    """Our stratified bootstrap against rliable.library's own on the same scores (5 runs x 3 tasks):
+    rliable.library does not import with pandas 3 (arch < 8 calls pandas' deprecate_kwarg the old way),
+    so the test adapts that one call before importing it."""
+    import pandas.util._decorators as decorators
+
+    original = decorators.deprecate_kwarg
+
+    def old_style(*args, **kwargs):
+        return (
+            original(FutureWarning, *args, **kwargs) if args and isinstance(args[0], str) else original(*args, **kwargs)
+        )
+
+    decorators.deprecate_kwarg = old_style
+    try:
+        from rliable import library, metrics
+    finally:
+        decorators.deprecate_kwarg = original
+    from harness.report import stats as ours
+
+    rng = np.random.default_rng(3)
+    x, y = rng.normal(size=(5, 3)), rng.normal(size=(5, 3)) + 0.5
+    np.random.seed(0)  # rliable draws its resamples from numpy's global generator
+    reps = 20_000
+    point, interval = library.get_interval_estimates(
+        {"x": x}, lambda s: np.array([metrics.aggregate_iqm(s)]), reps=reps
+    )
+    mine = ours.aggregate_iqm_with_ci(list(x.T))
+    assert mine[0] == pytest.approx(point["x"][0])
+    assert mine[1:] == pytest.approx(interval["x"].ravel(), abs=0.05)  # Monte Carlo: ours uses 2000 resamples
+    point, interval = library.get_interval_estimates({"p": [x, y]}, metrics.probability_of_improvement, reps=reps)
+    mine = ours.probability_of_improvement_with_ci(list(x.T), list(y.T))
+    assert mine[0] == pytest.approx(point["p"])
+    assert mine[1:] == pytest.approx(interval["p"].ravel(), abs=0.03)
+    taus = np.linspace(-2, 2, 9)
+    point, interval = library.create_performance_profile({"x": x}, taus, reps=reps)
+    mine = ours.performance_profile_with_ci(list(x.T), taus)
+    assert mine[0] == pytest.approx(point["x"])
+    assert np.abs(np.stack(mine[1:]) - interval["x"]).max() <= 0.07
+
+
 def test_unfinished_run_is_left_out_of_returns_but_not_of_curves(suite):
     returns = pd.read_csv(suite["out"] / "returns.csv")
     h32 = _row(returns, algo="shac", backend="newton", horizon=32, num_envs=4)
@@ -479,6 +542,7 @@ def test_every_plot_exists(suite):
     pngs = [p for p in suite["written"] if p.suffix == ".png"]
     names = {p.name for p in pngs}
     expected = {"learning_curves_steps", "learning_curves_wall", "grad_variance_vs_h", "lambda_alpha", "wall_time"}
+    expected |= {"performance_profile"}
     assert {f"{n}.png" for n in expected | {"throughput"}} <= names
     for path in pngs:
         assert path.is_file() and path.stat().st_size > 1000, path

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from harness.report.aggregate import aggregate_table
 from harness.report.formatting import fmt, fmt_ci, fmt_count, fmt_pct, fmt_range, fmt_verdict, is_missing
 from harness.report.records import CheckRecord, RunRecord
 from harness.report.stats import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, EFFECTS
@@ -204,6 +205,8 @@ def returns_document(runs: list[RunRecord]) -> Table:
                     ("vs base", _base_cell),
                     ("IQM improvement", "improvement_iqm"),
                     ("improvement 95% CI", lambda r: fmt_ci(r["improvement_ci_low"], r["improvement_ci_high"])),
+                    ("P(algo > base)", "p_improvement"),
+                    ("P 95% CI", lambda r: fmt_ci(r["p_improvement_ci_low"], r["p_improvement_ci_high"])),
                     ("detectable at 80% power", "mde_80"),
                 ],
                 empty="no run has an eval.json",
@@ -232,6 +235,10 @@ def returns_document(runs: list[RunRecord]) -> Table:
             "IQM improvement: IQM(algo) - IQM(base) at the same task, backend, h, N and epochs (base of shac-tdfixed "
             "and shac-tdadpt is shac, of sapo-tdfixed and sapo-tdadpt sapo), 95% CI from a two-sample unpaired "
             "percentile bootstrap (each algorithm's seeds resampled on their own), n/a under 2 seeds on a side.",
+            "P(algo > base): rliable's probability of improvement (`rliable.metrics.probability_of_improvement`: "
+            "the chance that a random seed of the algorithm scores above a random seed of its base, ties counting "
+            "half; 0.5 is no difference), 95% CI from rliable's stratified independent bootstrap "
+            f"({BOOTSTRAP_RESAMPLES} resamples); n/a under 2 seeds on a side.",
             "Detectable at 80% power: the smallest true difference of mean final returns between the algorithm "
             "and its base that a two-sided two-sample t-test at level 0.05 detects with probability 0.8 at the "
             "seeds they have, (t_0.975 + t_0.8) s sqrt(1/n1 + 1/n2), s the pair's pooled between-seed std; an "
@@ -241,6 +248,43 @@ def returns_document(runs: list[RunRecord]) -> Table:
             "Runs without eval.json (unfinished) are left out of this table.",
         ],
         _run_commits(evaluated),
+    )
+
+
+def aggregate_document(runs: list[RunRecord]) -> Table:
+    """rliable's aggregates across tasks: normalised-score IQM and probability of improvement."""
+    table = aggregate_table(runs)
+    return Table(
+        "aggregate",
+        "Across tasks: aggregate IQM of normalised scores and probability of improvement (rliable)",
+        rests_on_runs([r for r in runs if r.evaluation is not None], "evaluated training runs"),
+        [
+            Section(
+                table,
+                _key_columns("backend", "algo", "tasks", "seeds")
+                + [
+                    ("IQM normalised", "iqm_normalised"),
+                    ("95% CI", lambda r: fmt_ci(r["iqm_ci_low"], r["iqm_ci_high"])),
+                    ("vs base", lambda r: r["base"] if isinstance(r["base"], str) else ""),
+                    ("P(algo > base) across tasks", "p_improvement"),
+                    ("P 95% CI", lambda r: fmt_ci(r["p_improvement_ci_low"], r["p_improvement_ci_high"])),
+                    ("settings", "settings"),
+                ],
+                empty="no task has evaluated runs that improved on the untrained policy",
+            )
+        ],
+        [
+            "Runs: per task and backend the setting (N, epochs, h) with the most evaluated runs, so no task "
+            "counts twice (harness/report/aggregate.py).",
+            "Normalised score, per task and backend: (final return - untrained) / (best - untrained), untrained "
+            "the mean initial-policy return of the setting's runs, best the highest IQM final return among its "
+            "algorithms: 0 is an untrained policy, 1 the best algorithm on that task and engine.",
+            "IQM normalised: `rliable.metrics.aggregate_iqm` over every seed of every task; 95% CI: rliable's "
+            f"stratified bootstrap (seeds resampled within each task, {BOOTSTRAP_RESAMPLES} resamples, percentile). "
+            "P(algo > base): `rliable.metrics.probability_of_improvement` averaged over the tasks both have, CI "
+            "from rliable's stratified independent bootstrap. Performance profiles: performance_profile.png.",
+        ],
+        _run_commits(runs),
     )
 
 
@@ -520,6 +564,7 @@ def build_tables(runs: list[RunRecord], checks: list[CheckRecord]) -> list[Table
     """Every table of the report, computed (nothing written), in the order index.md lists them."""
     return [
         returns_document(runs),
+        aggregate_document(runs),
         grad_variance_document(runs),
         wall_time_document(runs),
         throughput_document(checks),

@@ -462,4 +462,5 @@ PLOT_DESCRIPTIONS = {
     "lambda_alpha.png": "lambda and SAPO's alpha per epoch, per task",
     "wall_time.png": "seconds per epoch split into simulation, backward and updates",
     "throughput.png": "env-steps/s forward and forward+backward per backend x task, log y",
+    "performance_profile.png": "rliable performance profiles of normalised scores across tasks, per backend",
 }

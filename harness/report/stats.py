@@ -4,9 +4,11 @@ and the ``report`` verb (``harness/report/compare.py``) both compute their numbe
 Interquartile mean (IQM): ``scipy.stats.trim_mean(x, 0.25)``, the definition of rliable (Agarwal et al.
 2021). Its 95% CI is scipy's percentile bootstrap over training seeds with 2000 resamples. rliable's
 stratified bootstrap resamples seeds within each task; every row of a table is one task and one backend,
-i.e. one stratum, so the stratified bootstrap is the plain bootstrap over seeds (rliable 1.2.0 itself does
-not import with this project's pandas 3.1, hence scipy's implementation). Every CI uses a fresh
-``np.random.default_rng(0)``, so a row's CI depends on its own data only and the tables are reproducible.
+i.e. one stratum, so the stratified bootstrap is the plain bootstrap over seeds. Across tasks (the
+aggregate IQM, the probability of improvement, performance profiles) the point estimates are
+``rliable.metrics``' own and the intervals rliable's stratified bootstrap, drawn here (last section).
+Every CI uses a fresh ``np.random.default_rng(0)``, so a row's CI depends on its own data only and the
+tables are reproducible.
 
 Also here: the difference of two IQMs and the ratio of two geometric means with two-sample (unpaired)
 bootstrap CIs, the geometric mean with its CI, the median over a run's logged epochs, the sample std, and
@@ -157,3 +159,94 @@ def ratio_of_geometric_means_with_ci(high: Iterable[float], low: Iterable[float]
         return point, math.nan, math.nan
     low, high = _percentile_ci((lh, ll), lambda x, y, axis=-1: np.mean(x, axis=axis) - np.mean(y, axis=axis))
     return point, math.exp(low), math.exp(high)
+
+
+# -- the field's statistics across tasks (rliable, Agarwal et al. 2021) ----------------------------
+# A score set is one array of run scores per task (the tasks may have different numbers of runs). The
+# point estimates are rliable.metrics' own functions; their 95% intervals are rliable's stratified
+# bootstrap (rliable.library.get_interval_estimates, percentile method): every resample draws each task's
+# runs with replacement within that task, and for a comparison each algorithm's runs on their own
+# (StratifiedIndependentBootstrap). rliable.library does not import with this project's pandas 3 (its
+# bootstrap comes from arch < 8), so the resampling is drawn here; tests/test_report.py checks these
+# intervals against rliable.library's on the same scores.
+TaskScores = list[np.ndarray]
+
+
+def _aggregate_iqm(scores: TaskScores) -> float:
+    from rliable import metrics
+
+    flat = np.concatenate([np.asarray(s, dtype=float) for s in scores])
+    return float(metrics.aggregate_iqm(flat[:, None]))
+
+
+def _probability_of_improvement(x: TaskScores, y: TaskScores) -> float:
+    from rliable import metrics
+
+    per_task = [
+        metrics.probability_of_improvement(np.asarray(a, float)[:, None], np.asarray(b, float)[:, None])
+        for a, b in zip(x, y, strict=True)
+    ]
+    return float(np.mean(per_task))
+
+
+def _pairwise_improvement(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """P(X > Y) + P(X = Y) / 2 along the last axis of resampled ``x`` (R x n) and ``y`` (R x m): the
+    Mann-Whitney U statistic over n m, which is what rliable.metrics.probability_of_improvement computes."""
+    greater = (x[:, :, None] > y[:, None, :]).mean(axis=(1, 2))
+    ties = (x[:, :, None] == y[:, None, :]).mean(axis=(1, 2))
+    return greater + 0.5 * ties
+
+
+def _resample(scores: TaskScores, rng: np.random.Generator) -> list[np.ndarray]:
+    """BOOTSTRAP_RESAMPLES stratified resamples: per task an array R x n_task of that task's runs."""
+    out = []
+    for s in scores:
+        s = np.asarray(s, dtype=float)
+        out.append(s[rng.integers(0, s.size, size=(BOOTSTRAP_RESAMPLES, s.size))])
+    return out
+
+
+def _interval(samples: np.ndarray) -> tuple[float, float]:
+    tail = 100 * (1 - CONFIDENCE) / 2
+    return float(np.percentile(samples, tail)), float(np.percentile(samples, 100 - tail))
+
+
+def aggregate_iqm_with_ci(scores: TaskScores) -> tuple[float, float, float]:
+    """rliable's aggregate IQM over every run of every task, with its stratified-bootstrap 95% CI (NaN
+    bounds when no task has 2 runs)."""
+    point = _aggregate_iqm(scores)
+    if max(len(s) for s in scores) < 2:
+        return point, math.nan, math.nan
+    resampled = np.concatenate(_resample(scores, np.random.default_rng(BOOTSTRAP_SEED)), axis=1)
+    return point, *_interval(_iqm_along(resampled, axis=1))
+
+
+def probability_of_improvement_with_ci(x: TaskScores, y: TaskScores) -> tuple[float, float, float]:
+    """rliable's probability of improvement of X over Y (P(X_m > Y_m) averaged over tasks m), with the
+    95% CI of its stratified independent bootstrap; NaN bounds when a side has under 2 runs on every task."""
+    point = _probability_of_improvement(x, y)
+    if max(len(s) for s in x) < 2 or max(len(s) for s in y) < 2:
+        return point, math.nan, math.nan
+    rng = np.random.default_rng(BOOTSTRAP_SEED)
+    rx, ry = _resample(x, rng), _resample(y, rng)
+    samples = np.mean([_pairwise_improvement(a, b) for a, b in zip(rx, ry, strict=True)], axis=0)
+    return point, *_interval(samples)
+
+
+def performance_profile_with_ci(
+    scores: TaskScores, thresholds: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """rliable's run-score distribution: at each threshold tau the fraction of runs scoring above tau
+    (averaged over tasks), with stratified-bootstrap 95% bands (NaN bands when no task has 2 runs)."""
+    thresholds = np.asarray(thresholds, dtype=float)
+
+    def fraction(per_task: list[np.ndarray]) -> np.ndarray:  # (R x n) per task -> R x thresholds
+        return np.mean([(s[..., :, None] > thresholds).mean(axis=-2) for s in per_task], axis=0)
+
+    point = fraction([np.asarray(s, dtype=float) for s in scores])
+    if max(len(s) for s in scores) < 2:
+        nan = np.full_like(point, np.nan)
+        return point, nan, nan
+    samples = fraction(_resample(scores, np.random.default_rng(BOOTSTRAP_SEED)))
+    tail = 100 * (1 - CONFIDENCE) / 2
+    return point, np.percentile(samples, tail, axis=0), np.percentile(samples, 100 - tail, axis=0)

@@ -7,6 +7,7 @@ from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
 
+from harness.report.aggregate import plot_performance_profiles
 from harness.report.documents import Table, build_tables, header_lines, write_table
 from harness.report.plots import (
     PLOT_DESCRIPTIONS,
@@ -55,6 +56,7 @@ def write_bench_report(runs: list[Path], checks: list[Path], out_dir: Path, head
         ("lambda_alpha.png", lambda p: plot_lambda_alpha(records, p)),
         ("wall_time.png", lambda p: plot_wall_time(main["wall_time"], p)),
         ("throughput.png", lambda p: plot_throughput(main["throughput"], p)),
+        ("performance_profile.png", lambda p: plot_performance_profiles(records, p)),
     ]
     plotted, skipped = [], []
     for name, draw in plots:

@@ -30,6 +30,7 @@ from harness.report.stats import (
     iqm_with_ci,
     minimum_detectable_difference,
     pooled_std,
+    probability_of_improvement_with_ci,
     ratio_of_geometric_means_with_ci,
     sample_std,
     seeds_needed,
@@ -60,6 +61,9 @@ def returns_table(runs: list[RunRecord]) -> pd.DataFrame:
         base = base_algo(algo)
         base_final = finals.get((task, backend, num_envs, planned, horizon, base)) if base != algo else None
         gain = iqm_difference_with_ci(final, base_final) if base_final is not None else (math.nan,) * 3
+        better = (
+            probability_of_improvement_with_ci([final], [base_final]) if base_final is not None else (math.nan,) * 3
+        )
         if base_final is not None and final.size + base_final.size > 2:
             spread = pooled_std([final, base_final])
             mde = minimum_detectable_difference(spread, final.size, base_final.size)
@@ -88,6 +92,9 @@ def returns_table(runs: list[RunRecord]) -> pd.DataFrame:
                 "improvement_iqm": gain[0],
                 "improvement_ci_low": gain[1],
                 "improvement_ci_high": gain[2],
+                "p_improvement": better[0],
+                "p_improvement_ci_low": better[1],
+                "p_improvement_ci_high": better[2],
                 "mde_80": mde,
             }
         )
@@ -116,6 +123,9 @@ _RETURNS_COLUMNS = [
     "improvement_iqm",
     "improvement_ci_low",
     "improvement_ci_high",
+    "p_improvement",
+    "p_improvement_ci_low",
+    "p_improvement_ci_high",
     "mde_80",
 ]
 
