@@ -203,11 +203,11 @@ class BatchedSim(ABC):
         return self.name
 
     @classmethod
-    def gradient_settings(cls, task) -> dict:
-        """The settings that make this adapter's gradients for ``task`` as it would be built without
-        explicit options (its defaults and the task's ``backend_options``): finite-difference steps and
-        schemes, for example. Empty for exact gradients. A bench run's and a gradient check's address
-        include them, so a changed default is new work rather than a stale result reused."""
+    def gradient_settings(cls, task, options: dict | None = None) -> dict:
+        """The settings that make this adapter's gradients for ``task`` as it would be built with the
+        explicit ``options`` (on top of its defaults and the task's ``backend_options``): finite-difference
+        steps and schemes, for example. Empty for exact gradients. A bench run's and a gradient check's
+        address include them, so a changed default is new work rather than a stale result reused."""
         return {}
 
     def physics_mapping(self) -> dict[str, str]:

@@ -10,7 +10,8 @@
   2N, and ``max_steps``);
 * ``[[train]]``: a grid ``backends x tasks x algos x seeds x horizons`` with ``epochs``, ``num_envs``,
   an optional physics ``preset`` (a name from ``harness list``; default: each task's own) and any
-  AlgoConfig field under ``[train.hyperparameters]``; ``[train.per_task.TASK]`` overrides
+  AlgoConfig field under ``[train.hyperparameters]``, adapter options per backend under
+  ``[train.backend_options.BACKEND]`` (``--backend-option``); ``[train.per_task.TASK]`` overrides
   ``epochs``, ``num_envs``, ``horizons``, ``seeds``, ``preset`` or hyperparameters for one task, and
   ``[train.eval]`` the evaluation protocol for the block (``seeds = 0``: no evaluation);
 * ``[[check]]``: ``kind`` (gradcheck, throughput, crosscheck, parity, contact-jacobians, grad-paths, and
@@ -18,7 +19,8 @@
   peer simulators, ``rewarped``), ``tasks`` and the verb's extra ``args`` (a list of command-line
   words), optionally ``[check.per_task.TASK]`` with ``args``;
 * ``[[sim_to_sim]]``: runs of the train grid (``task``, ``train_backend``, ``algos``, ``seeds``,
-  ``horizon``, ``preset``, and ``epochs``/``train_num_envs`` where two train blocks share the rest)
+  ``horizon``, ``preset``, and ``epochs``/``train_num_envs`` where two train blocks share the rest;
+  runs built with adapter options only when ``backend_options`` names them)
   evaluated on ``train_backend`` and ``eval_backend`` with one protocol (``eval_seeds``, ``num_envs``,
   ``max_steps``);
 * ``[[landscape]]``: runs of the grid (selected as for sim-to-sim, ``backend`` for ``train_backend``)
@@ -185,21 +187,23 @@ def _preset_suffix(args: list[str]) -> str:
     return f".{args[args.index('--preset') + 1]}" if "--preset" in args[:-1] else ""
 
 
-def gradient_identity(backend_names, task: str, preset: str | None = None) -> dict:
+def gradient_identity(backend_names, task: str, preset: str | None = None, options: dict | None = None) -> dict:
     """``{"gradients": {backend: settings}}`` for the backends whose gradients depend on settings
     (:meth:`BatchedSim.gradient_settings`; finite differences), ``{}`` when none does (exact gradients):
     part of the address of a run and of a check that differentiates, so a changed default is new work."""
-    settings = {b: _gradient_settings(b, task, preset) for b in backend_names}
+    frozen = tuple(sorted((options or {}).items()))
+    settings = {b: _gradient_settings(b, task, preset, frozen) for b in backend_names}
     settings = {b: s for b, s in settings.items() if s}
     return {"gradients": settings} if settings else {}
 
 
 @functools.cache
-def _gradient_settings(backend: str, task: str, preset: str | None) -> dict:
+def _gradient_settings(backend: str, task: str, preset: str | None, options: tuple = ()) -> dict:
     import backends
     from tasks import make_task
 
-    return json.loads(json.dumps(backends.get(backend).gradient_settings(make_task(task, preset=preset))))
+    settings = backends.get(backend).gradient_settings(make_task(task, preset=preset), dict(options))
+    return json.loads(json.dumps(settings))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -219,6 +223,7 @@ class RunSpec:
     eval_num_envs: int | None = None
     eval_max_steps: int | None = None
     preset: str | None = None  # a physics preset other than the task's default (None: the default)
+    backend_options: tuple = ()  # sorted (option, value) pairs the adapter is built with (--backend-option)
 
     def algo_config(self):
         from algorithms.config import preset
@@ -240,8 +245,8 @@ class RunSpec:
             "algo": cfg.as_dict(),
             # the physics the run rests on (preset, constants, engine settings): a changed default is a new run
             "physics": physics_identity(self.task, self.preset),
-            **gradient_identity([self.backend], self.task, self.preset),
-        }
+            **gradient_identity([self.backend], self.task, self.preset, dict(self.backend_options)),
+        } | ({"backend_options": dict(self.backend_options)} if self.backend_options else {})
 
     @property
     def key(self) -> str:
@@ -270,7 +275,7 @@ def _train_grid(data: dict, device: str, known: dict) -> list[RunSpec]:
         _expect(
             block,
             {"backends", "tasks", "algos", "seeds", "horizons", "epochs", "num_envs", "hyperparameters"}
-            | {"per_task", "eval", "preset"},
+            | {"per_task", "eval", "preset", "backend_options"},
             where,
         )
         block_eval = {**ev, **block.get("eval", {})}
@@ -279,6 +284,7 @@ def _train_grid(data: dict, device: str, known: dict) -> list[RunSpec]:
         for key in ("backends", "tasks", "algos", "epochs"):
             if key not in block:
                 raise RunError(f"{where}: needs {key}")
+        options = _backend_options(block.get("backend_options", {}), block["backends"], where)
         per_task = block.get("per_task", {})
         for task, override in per_task.items():
             allowed = {"epochs", "num_envs", "horizons", "seeds", "hyperparameters", "preset"}
@@ -308,6 +314,7 @@ def _train_grid(data: dict, device: str, known: dict) -> list[RunSpec]:
                                 eval_num_envs=block_eval.get("num_envs"),
                                 eval_max_steps=block_eval.get("max_steps"),
                                 preset=preset,
+                                backend_options=options.get(backend, ()),
                             )
                             try:
                                 run.algo_config()
@@ -327,6 +334,21 @@ def _train_grid(data: dict, device: str, known: dict) -> list[RunSpec]:
     if data["suite"].get("order", "seed") == "seed":
         runs.sort(key=lambda r: r.seed)
     return runs
+
+
+def _backend_options(table, block_backends, where: str) -> dict[str, tuple]:
+    """``backend_options = {BACKEND = {OPTION = VALUE}}`` of a [[train]] block: per backend of the block,
+    sorted (option, value) pairs, the values as TOML gives them (as ``--backend-option`` reads numbers)."""
+    if not isinstance(table, dict) or not all(isinstance(v, dict) for v in table.values()):
+        raise RunError(f"{where} backend_options: expected a table of backend = {{option = value}}")
+    for backend in table:
+        if backend not in _names(block_backends, f"{where} backends"):
+            raise RunError(f"{where} backend_options: {backend!r} is not one of the block's backends")
+    for opts in table.values():
+        for key, value in opts.items():
+            if not isinstance(value, str | int | float) or isinstance(value, bool):
+                raise RunError(f"{where} backend_options: {key} must be a string or a number, got {value!r}")
+    return {b: tuple(sorted(opts.items())) for b, opts in table.items()}
 
 
 def _preset(task: str, name, where: str) -> str | None:
@@ -537,6 +559,7 @@ def plan(data: dict, store: Path) -> list[Job]:
         two [[train]] blocks that share task, backend, algorithm, seed, horizon and preset; a block that
         would select both is refused rather than silently given one of them."""
         epochs, train_envs = block.get("epochs"), block.get("train_num_envs")
+        options = tuple(sorted(block.get("backend_options", {}).items()))  # the runs' adapter options
         found = [
             job
             for job in train_jobs
@@ -548,6 +571,7 @@ def plan(data: dict, store: Path) -> list[Job]:
             and job.run.preset == _preset(job.run.task, block.get("preset"), where)
             and (epochs is None or job.run.epochs == int(epochs))
             and (train_envs is None or job.run.num_envs == int(train_envs))
+            and job.run.backend_options == options
         ]
         if not found:
             raise RunError(f"{where}: selects no run of the [[train]] grid; it needs runs to analyse")
@@ -568,7 +592,7 @@ def plan(data: dict, store: Path) -> list[Job]:
         _expect(
             block,
             {"task", "train_backend", "eval_backend", "algos", "seeds", "horizon", "preset", "epochs"}
-            | {"train_num_envs", "eval_seeds", "num_envs", "max_steps"},
+            | {"train_num_envs", "backend_options", "eval_seeds", "num_envs", "max_steps"},
             where,
         )
         _known(block.get("eval_backend"), known["backends"], "backend", where)
@@ -602,7 +626,7 @@ def plan(data: dict, store: Path) -> list[Job]:
         _expect(
             block,
             {"task", "backend", "algos", "seeds", "horizon", "grid", "span", "num_envs", "preset", "epochs"}
-            | {"train_num_envs"},
+            | {"train_num_envs", "backend_options"},
             where,
         )
         for source in select(block, where, "backend"):

@@ -22,11 +22,13 @@ def make_env(
     seed: int = 0,
     horizon: int = 32,
     physics: PhysicsSpec | None = None,
+    options: dict | None = None,
 ) -> TaskEnv:
-    """An env of ``task`` (a :class:`tasks.Task`, or a task name with optional ``physics``)."""
+    """An env of ``task`` (a :class:`tasks.Task`, or a task name with optional ``physics``); ``options``:
+    the adapter's explicit options (``--backend-option``)."""
     if isinstance(task, str):
         task = make_task(task, physics)
-    return TaskEnv(task, make_sim(backend, task, num_envs, device, seed, horizon))
+    return TaskEnv(task, make_sim(backend, task, num_envs, device, seed, horizon, **(options or {})))
 
 
 def physics_fields(recorded: dict) -> dict:

@@ -253,6 +253,10 @@ def _train_and_evaluate(run_dir: Path, job: dict, stream) -> None:
         recorded = {k: config[k] for k in ("task", "backend", "seed", "device", "epochs")}
         recorded["algo"] = config["algo_config"].as_dict()
         recorded["physics"] = config.get("physics_record")
+        if config.get("backend_options"):
+            recorded["backend_options"] = config["backend_options"]
+        if config.get("gradients"):
+            recorded["gradients"] = config["gradients"]
         if _hash(recorded) != job["key"]:
             raise RunError(f"{run_dir}: config.json does not match the planned run (job.json): move the folder away")
         if not _training_complete(run_dir, job["epochs"]):
@@ -270,6 +274,7 @@ def _train_and_evaluate(run_dir: Path, job: dict, stream) -> None:
             command="python -m harness bench-run " + str(run_dir),
             stream=stream,
             preset=job.get("preset"),  # None: the task's default
+            backend_options=job.get("backend_options"),
         )
     if ev["seeds"]:
         evaluate(run_dir, seeds=ev["seeds"], num_envs=ev["num_envs"], max_steps=ev["max_steps"], stream=stream)

@@ -35,8 +35,10 @@ from pathlib import Path
 
 import torch
 
+import backends
 from algorithms.actor_critic import FirstOrderActorCritic
 from algorithms.config import AlgoConfig
+from backends.contract import BackendError
 from harness.claims import process_alive
 from harness.envs import make_env, run_task
 from harness.progress import ProgressLine, duration
@@ -252,9 +254,11 @@ def train(
     command: str | None = None,
     stream=sys.stdout,
     preset: str | None = None,
+    backend_options: dict[str, object] | None = None,
 ) -> Path:
     """Start a new run in ``run_dir`` (which must not hold one) and train it for ``epochs`` epochs on the
-    task's physics ``preset`` (its default when ``None``)."""
+    task's physics ``preset`` (its default when ``None``), the adapter built with ``backend_options``
+    (``--backend-option``: finite-difference scheme and steps, for example; recorded, and kept on resume)."""
     run_dir = check_output_dir(run_dir)
     algo_config = algo_config.replace(max_epochs=algo_config.max_epochs or epochs)
     config = {
@@ -267,6 +271,8 @@ def train(
         "preset": preset,
         "provenance": provenance(command),
     }
+    if backend_options:
+        config["backend_options"] = {str(k): v for k, v in backend_options.items()}
     return _run(run_dir, config, algo_config, checkpoint_every=checkpoint_every, stream=stream)
 
 
@@ -335,10 +341,26 @@ def _run(
             "mid-run; start a new run"
         )
     config["physics_record"] = current
-    write_json(config_path, config)  # first, before anything slow: from here on the folder is resumable
+    options = config.get("backend_options") or {}
+    try:
+        gradients = json.loads(json.dumps(backends.get(backend).gradient_settings(task_spec, options)))
+    except ValueError as exc:  # a bad --backend-option value
+        raise RunError(f"{backend} options {options}: {exc}") from None
+    if source is not None and config.get("gradients", {}).get(backend, gradients) != gradients:
+        raise RunError(
+            f"{run_dir} was trained with {backend} gradient settings {config['gradients'][backend]}, this "
+            f"installation makes {gradients}: continuing would change the gradients mid-run; start a new run"
+        )
+    if gradients:
+        config["gradients"] = {backend: gradients}
     torch.manual_seed(seed)
     random.seed(seed)
-    env = make_env(task_spec, backend, algo_config.num_envs, device, seed, algo_config.horizon)
+    # the adapter before config.json: a bad --backend-option is refused with nothing written
+    try:
+        env = make_env(task_spec, backend, algo_config.num_envs, device, seed, algo_config.horizon, options=options)
+    except (ValueError, TypeError, BackendError) as exc:
+        raise RunError(f"cannot build {backend}/{task} with options {options}: {exc}") from None
+    write_json(config_path, config)  # from here on the folder is resumable
     algo = FirstOrderActorCritic(algo_config, env.obs_dim, env.action_dim)
     progress = {"env_steps": 0, "wall_s": 0.0, "recent_returns": [], "nonfinite_events": 0}
     if source is None:
@@ -442,7 +464,9 @@ def evaluate(
         for i in range(seeds):
             eval_seed = 10_000 + i  # disjoint from training seeds
             torch.manual_seed(eval_seed)
-            env = make_env(run_task(config), backend, n, config["device"], eval_seed, cfg.horizon)
+            # the run's adapter options on its own engine (another engine has options of its own)
+            options = config.get("backend_options") if backend == trained_on else None
+            env = make_env(run_task(config), backend, n, config["device"], eval_seed, cfg.horizon, options=options)
             algo = FirstOrderActorCritic(cfg, env.obs_dim, env.action_dim)
             load_checkpoint(run_dir / name, algo)
             obs = env.reset()

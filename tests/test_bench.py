@@ -153,6 +153,24 @@ def test_an_analysis_block_chooses_between_two_train_blocks_or_is_refused(tmp_pa
         assert [r.epochs for r in sources] == [epochs]
 
 
+def test_a_train_block_builds_one_backend_with_options(tmp_path):
+    text = (
+        "[suite]\nname='x'\n[[train]]\nbackends=['newton','mujoco_warp']\ntasks=['ant']\nalgos=['shac']\n"
+        "epochs=1\nnum_envs=4\n[train.backend_options.mujoco_warp]\nfd_scheme='one_sided'\n"
+    )
+    runs = {j.run.backend: j.run for j in plan(load_spec(spec_file=str(_write(tmp_path, text)))[0], tmp_path)}
+    assert runs["mujoco_warp"].identity()["backend_options"] == {"fd_scheme": "one_sided"}
+    assert runs["mujoco_warp"].identity()["gradients"]["mujoco_warp"]["fd_scheme"] == "one_sided"
+    assert "backend_options" not in runs["newton"].identity()
+    for bad, message in (
+        ("[train.backend_options.go2]\nx=1\n", "not one of the block's backends"),
+        ("[train.backend_options.newton]\nsolver=[1]\n", "must be a string or a number"),
+    ):
+        text = "[suite]\nname='x'\n[[train]]\nbackends=['newton']\ntasks=['ant']\nalgos=['shac']\nepochs=1\n"
+        with pytest.raises(RunError, match=message):
+            plan(load_spec(spec_file=str(_write(tmp_path, text + bad)))[0], tmp_path)
+
+
 def test_bad_specs_fail_with_one_line(tmp_path):
     cases = {
         "[suite]\nname='x'\n[[train]]\nbackends=['newton']\ntasks=['ant']\nalgos=['shac']\nepoch=3\n": "unknown key",

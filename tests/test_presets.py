@@ -57,3 +57,33 @@ def test_resume_refuses_a_run_whose_physics_changed(tmp_path):
     (run / "config.json").write_text(json.dumps(config))
     with pytest.raises(RunError, match="change the physics mid-run"):
         resume(run, epochs=2, stream=open("/dev/null", "w"))
+
+
+def test_adapter_options_travel_with_a_run(tmp_path):
+    """``train --backend-option``: recorded in config.json, kept on resume, part of a bench run's address,
+    a row of its own in the report; a bad option is refused before config.json is written."""
+    from algorithms.config import preset
+    from harness.report.records import load_run
+    from harness.train import resume, train
+
+    quiet = open("/dev/null", "w")
+    cfg = preset("shac").replace(num_envs=4, horizon=2)
+    run = tmp_path / "run"
+    train(run, "ant", "newton", cfg, epochs=1, stream=quiet, backend_options={"graph_capture": 0})
+    assert json.loads((run / "config.json").read_text())["backend_options"] == {"graph_capture": 0}
+    resume(run, epochs=2, stream=quiet)
+    config = json.loads((run / "config.json").read_text())
+    assert config["backend_options"] == {"graph_capture": 0} and len(config["resumed"]) == 1
+    assert load_run(run).backend == "newton+graph_capture=0"  # never pooled with the default's seeds
+
+    with pytest.raises(RunError, match="no option 'fd_scheme'"):
+        train(tmp_path / "bad", "ant", "newton", cfg, epochs=1, stream=quiet, backend_options={"fd_scheme": "central"})
+    assert not (tmp_path / "bad" / "config.json").exists()
+
+    base = RunSpec(
+        task="ant", backend="mujoco_warp", algo="shac", seed=0, epochs=1, num_envs=4, horizon=2, device="cpu"
+    )
+    one_sided = dataclasses.replace(base, backend_options=(("fd_scheme", "one_sided"),))
+    assert one_sided.key != base.key
+    assert one_sided.identity()["gradients"]["mujoco_warp"]["fd_scheme"] == "one_sided"
+    assert base.identity()["gradients"]["mujoco_warp"]["fd_scheme"] == "forward"

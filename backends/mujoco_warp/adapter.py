@@ -357,9 +357,9 @@ class MujocoWarpSim(BatchedSim):
         return mapping
 
     @classmethod
-    def gradient_settings(cls, task) -> dict:
+    def gradient_settings(cls, task, options: dict | None = None) -> dict:
         """:meth:`BatchedSim.gradient_settings`: the finite-difference settings (:func:`fd_settings`)."""
-        return fd_settings(task, dict(getattr(task, "backend_options", {}).get(cls.name, {})))
+        return fd_settings(task, {**dict(getattr(task, "backend_options", {}).get(cls.name, {})), **(options or {})})
 
     @property
     def layout(self) -> StateLayout:

@@ -161,6 +161,8 @@ VERB_HELP: dict[str, dict[str, str]] = {
         "out": "the check's result file (JSON)",
     },
     "train": {
+        "backend_option": "adapter option, repeatable, e.g. fd_scheme=one_sided: recorded in config.json, kept on "
+        "--resume and in evaluations on the same backend",
         "epochs": "total epochs (with --resume: a new, larger total)",
         "out": "the run directory to write",
     },
@@ -290,7 +292,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("train", help="train an algorithm; writes config.json, metrics.jsonl, checkpoints")
     _add(p, "train", "backend", "task", "algo", "num_envs", "horizon", "device", "seed", "epochs", "out")
-    _add(p, "train", "checkpoint_every", "preset")
+    _add(p, "train", "checkpoint_every", "preset", "backend_option")
     p.add_argument("--resume", metavar="DIR", help="continue the interrupted run in DIR (only --epochs may change)")
     _hyperparameter_flags(p)
 

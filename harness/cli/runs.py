@@ -61,6 +61,7 @@ def cmd_train(args) -> int:
         checkpoint_every=args.checkpoint_every,
         command=_command(),
         preset=args.preset,
+        backend_options=dict(args.backend_option or []),
     )
     return 0
 

@@ -144,6 +144,13 @@ def _task_label(task: str, config: dict) -> str:
     return task if preset in (None, default) else f"{task}.{preset}"
 
 
+def _backend_label(backend: str, config: dict) -> str:
+    """The backend as tables name it: ``mujoco_warp``, or ``mujoco_warp+fd_scheme=one_sided`` for a run
+    built with explicit adapter options, so runs of two gradient settings never pool as seeds of one row."""
+    options = config.get("backend_options") or {}
+    return "+".join([backend, *(f"{k}={v}" for k, v in sorted(options.items()))])
+
+
 def load_run(run_dir: Path, stream=None) -> RunRecord | None:
     """Read one run directory; None (said on ``stream``) when its config.json is missing or unusable."""
     run_dir = Path(run_dir)
@@ -180,7 +187,7 @@ def load_run(run_dir: Path, stream=None) -> RunRecord | None:
     return RunRecord(
         path=run_dir,
         task=_task_label(task, config),
-        backend=backend,
+        backend=_backend_label(backend, config),
         algo=algo,
         horizon=horizon,
         seed=seed,
