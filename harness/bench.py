@@ -123,12 +123,6 @@ def _hash(payload) -> str:
 # -- the spec -------------------------------------------------------------------------------------
 
 
-def _expect(table: dict, allowed: set[str], where: str) -> None:
-    unknown = sorted(set(table) - allowed)
-    if unknown:
-        raise RunError(f"{where}: unknown key(s) {', '.join(unknown)}; allowed: {', '.join(sorted(allowed))}")
-
-
 def _names(value, where: str) -> list:
     if isinstance(value, str | int):
         return [value]
@@ -151,18 +145,19 @@ def load_spec(profile: str | None = None, spec_file: str | None = None) -> tuple
         if not path.is_file():
             raise RunError(f"--spec {spec_file}: no such file")
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(path.read_bytes().decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise RunError(f"{path}: not UTF-8 ({exc.reason} at byte {exc.start})") from None
     except tomllib.TOMLDecodeError as exc:
         raise RunError(f"{path}: not valid TOML ({exc})") from None
     return check_spec(data, str(path)), path
 
 
 def check_spec(data: dict, where: str) -> dict:
-    """``data`` if its top level is a spec's (the blocks :func:`plan` then checks one by one)."""
-    _expect(data, {"suite", "eval", "train", "check", "sim_to_sim", "landscape"}, where)
-    if "suite" not in data or "name" not in data["suite"]:
-        raise RunError(f"{where}: needs [suite] with a name")
-    return data
+    """``data`` if every key of the spec is valid (:mod:`harness.spec_schema`, one pass, one line)."""
+    from harness.spec_schema import validate_spec
+
+    return validate_spec(data, where)
 
 
 def physics_identity(task: str, preset: str | None = None) -> dict:
@@ -267,37 +262,20 @@ class RunSpec:
 
 def _train_grid(data: dict, device: str, known: dict) -> list[RunSpec]:
     ev = data.get("eval", {})
-    _expect(ev, {"seeds", "num_envs", "max_steps"}, "[eval]")
     runs: list[RunSpec] = []
     seen: set[str] = set()
     for i, block in enumerate(data.get("train", [])):
         where = f"[[train]] #{i + 1}"
-        _expect(
-            block,
-            {"backends", "tasks", "algos", "seeds", "horizons", "epochs", "num_envs", "hyperparameters"}
-            | {"per_task", "eval", "preset", "backend_options"},
-            where,
-        )
         block_eval = {**ev, **block.get("eval", {})}
-        _expect(block_eval, {"seeds", "num_envs", "max_steps"}, f"{where} eval")
         block_runs: list[RunSpec] = []
-        for key in ("backends", "tasks", "algos", "epochs"):
-            if key not in block:
-                raise RunError(f"{where}: needs {key}")
-        options = _backend_options(block.get("backend_options", {}), block["backends"], where)
+        options = {b: tuple(sorted(opts.items())) for b, opts in block.get("backend_options", {}).items()}
         per_task = block.get("per_task", {})
-        for task, override in per_task.items():
-            allowed = {"epochs", "num_envs", "horizons", "seeds", "hyperparameters", "preset"}
-            _expect(override, allowed, f"{where} per_task.{task}")
         for backend in _names(block["backends"], f"{where} backends"):
-            _known(backend, known["backends"], "backend", where)
             for task in _names(block["tasks"], f"{where} tasks"):
-                _known(task, known["tasks"], "task", where)
                 merged = {**block, **per_task.get(task, {})}
                 preset = _preset(task, merged.get("preset"), where)
                 hyper = {**block.get("hyperparameters", {}), **per_task.get(task, {}).get("hyperparameters", {})}
                 for algo in _names(block["algos"], f"{where} algos"):
-                    _known(algo, known["algos"], "algorithm", where)
                     for seed in _names(merged.get("seeds", [0]), f"{where} seeds"):
                         for horizon in _names(merged.get("horizons", [32]), f"{where} horizons"):
                             run = RunSpec(
@@ -334,21 +312,6 @@ def _train_grid(data: dict, device: str, known: dict) -> list[RunSpec]:
     if data["suite"].get("order", "seed") == "seed":
         runs.sort(key=lambda r: r.seed)
     return runs
-
-
-def _backend_options(table, block_backends, where: str) -> dict[str, tuple]:
-    """``backend_options = {BACKEND = {OPTION = VALUE}}`` of a [[train]] block: per backend of the block,
-    sorted (option, value) pairs, the values as TOML gives them (as ``--backend-option`` reads numbers)."""
-    if not isinstance(table, dict) or not all(isinstance(v, dict) for v in table.values()):
-        raise RunError(f"{where} backend_options: expected a table of backend = {{option = value}}")
-    for backend in table:
-        if backend not in _names(block_backends, f"{where} backends"):
-            raise RunError(f"{where} backend_options: {backend!r} is not one of the block's backends")
-    for opts in table.values():
-        for key, value in opts.items():
-            if not isinstance(value, str | int | float) or isinstance(value, bool):
-                raise RunError(f"{where} backend_options: {key} must be a string or a number, got {value!r}")
-    return {b: tuple(sorted(opts.items())) for b, opts in table.items()}
 
 
 def _preset(task: str, name, where: str) -> str | None:
@@ -494,10 +457,8 @@ def plan(data: dict, store: Path) -> list[Job]:
     from algorithms.config import ALGORITHMS
 
     known = {"backends": backends.available(), "tasks": tasks.available(), "algos": list(ALGORITHMS)}
+    check_spec(data, "spec")
     suite = data["suite"]
-    _expect(suite, {"name", "description", "jobs", "device", "order"}, "[suite]")
-    if suite.get("order", "seed") not in ("seed", "block"):
-        raise RunError(f"[suite] order must be 'seed' or 'block', got {suite['order']!r}")
     device = suite.get("device", "cpu")
     jobs: list[Job] = []
 
@@ -508,10 +469,7 @@ def plan(data: dict, store: Path) -> list[Job]:
     check_args: list[list[str]] = []  # each check job's extra words, in order
     for i, block in enumerate(data.get("check", [])):
         where = f"[[check]] #{i + 1}"
-        _expect(block, {"kind", "backends", "tasks", "args", "per_task"}, where)
         kind = block.get("kind")
-        if kind not in CHECK_KINDS:
-            raise RunError(f"{where}: kind must be one of {', '.join(CHECK_KINDS)}, got {kind!r}")
         blist = _names(block.get("backends", []), f"{where} backends")
         for b in blist:
             if kind == "peer":
@@ -521,7 +479,6 @@ def plan(data: dict, store: Path) -> list[Job]:
             if kind in ONLY_BACKEND and b != ONLY_BACKEND[kind]:
                 raise RunError(f"{where}: {kind} measures {ONLY_BACKEND[kind]} only, not {b!r}")
         for task in _names(block.get("tasks", []), f"{where} tasks"):
-            _known(task, known["tasks"], "task", where)
             args = [str(a) for a in block.get("args", []) + block.get("per_task", {}).get(task, {}).get("args", [])]
             for label_backend, words in _check_targets(kind, blist, task):
                 differentiates = kind in GRADIENT_CHECK_KINDS
@@ -589,13 +546,6 @@ def plan(data: dict, store: Path) -> list[Job]:
 
     for i, block in enumerate(data.get("sim_to_sim", [])):
         where = f"[[sim_to_sim]] #{i + 1}"
-        _expect(
-            block,
-            {"task", "train_backend", "eval_backend", "algos", "seeds", "horizon", "preset", "epochs"}
-            | {"train_num_envs", "backend_options", "eval_seeds", "num_envs", "max_steps"},
-            where,
-        )
-        _known(block.get("eval_backend"), known["backends"], "backend", where)
         for source in select(block, where, "train_backend"):
             protocol = {
                 "seeds": int(block.get("eval_seeds", 2)),
@@ -623,12 +573,6 @@ def plan(data: dict, store: Path) -> list[Job]:
 
     for i, block in enumerate(data.get("landscape", [])):
         where = f"[[landscape]] #{i + 1}"
-        _expect(
-            block,
-            {"task", "backend", "algos", "seeds", "horizon", "grid", "span", "num_envs", "preset", "epochs"}
-            | {"train_num_envs", "backend_options"},
-            where,
-        )
         for source in select(block, where, "backend"):
             grid, span = int(block.get("grid", 40)), float(block.get("span", 1.0))
             num_envs = int(block.get("num_envs", source.run.num_envs))
