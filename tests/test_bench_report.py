@@ -575,3 +575,11 @@ def test_base_algo():
         "sapo",
         "sapo",
     ]
+
+
+def test_the_index_leads_with_the_headline(suite):
+    index = (suite["out"] / "index.md").read_text()
+    assert index.index("## Headline") < index.index("## Tables") < index.index("## Plots")
+    headline = index[index.index("## Headline") : index.index("## Tables")]
+    assert "| ant | newton | shac-tdadpt |" in headline and "IQM normalised" in headline
+    assert "](learning_curves_steps.png)" in headline and "](performance_profile.png)" in headline

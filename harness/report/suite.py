@@ -7,8 +7,8 @@ from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
 
-from harness.report.aggregate import plot_performance_profiles
-from harness.report.documents import Table, build_tables, header_lines, write_table
+from harness.report.aggregate import headline_settings, plot_performance_profiles
+from harness.report.documents import Table, build_tables, header_lines, markdown_rows, write_table
 from harness.report.plots import (
     PLOT_DESCRIPTIONS,
     NoPlotData,
@@ -76,13 +76,48 @@ def write_bench_report(runs: list[Path], checks: list[Path], out_dir: Path, head
     for line in skipped:
         say(stream, f"skipped plot {line}")
     written += plotted
-    written.append(write_index(tables, plotted, skipped, out_dir, header))
+    headline = headline_lines(tables, records, plotted)
+    written.append(write_index(tables, plotted, skipped, out_dir, header, headline))
     return written
 
 
-def write_index(tables: list[Table], plotted: list[Path], skipped: list[str], out_dir: Path, header: dict) -> Path:
-    """``index.md``: what the report holds, and which plots were skipped and why."""
-    lines = ["# Benchmark report", "", *header_lines(header), "", "## Tables", ""]
+HEADLINE_PLOTS = ("learning_curves_steps.png", "performance_profile.png", "grad_variance_vs_h.png")
+
+
+def headline_lines(tables: list[Table], records, plotted: list[Path]) -> list[str]:
+    """What a reader takes in first: final returns at each task's headline setting (the one the aggregates
+    use), the aggregates across tasks, and the headline plots inline."""
+    by_name = {table.name: table for table in tables}
+    lines = ["## Headline", ""]
+    returns = by_name["returns"].sections[0]
+    settings = headline_settings(records)
+    if not returns.frame.empty and settings:
+        frame = returns.frame
+        keep = [
+            settings.get((row["task"], row["backend"])) == (row["num_envs"], row["epochs"], row["horizon"])
+            for _, row in frame.iterrows()
+        ]
+        shown = [c for c in returns.columns if c[0] not in ("mean ± std", "initial (mean)", "IQM improvement")]
+        shown = [c for c in shown if c[0] not in ("improvement 95% CI", "detectable at 80% power")]
+        lines += ["Final evaluation return at each task's headline setting (all settings: `returns.md`):", ""]
+        lines += markdown_rows(frame[keep], shown) + [""]
+    aggregate = by_name["aggregate"].sections[0]
+    if not aggregate.frame.empty:
+        lines += ["Across tasks, normalised scores (how: `aggregate.md`):", ""]
+        lines += markdown_rows(aggregate.frame, aggregate.columns) + [""]
+    names = {p.name for p in plotted}
+    for name in HEADLINE_PLOTS:
+        if name in names:
+            lines += [f"![{PLOT_DESCRIPTIONS[name]}]({name})", ""]
+    return lines if len(lines) > 2 else []
+
+
+def write_index(
+    tables: list[Table], plotted: list[Path], skipped: list[str], out_dir: Path, header: dict, headline=()
+) -> Path:
+    """``index.md``: the headline tables and plots, then what the report holds, and which plots were
+    skipped and why."""
+    lines = ["# Benchmark report", "", *header_lines(header), "", *headline, "## Tables", ""]
     for table in tables:
         csvs = ", ".join(f"`{table.name}{s.csv_suffix}.csv`" for s in table.sections)
         lines.append(f"- `{table.name}.md` ({csvs}): {table.title}. {table.rests_on}")
