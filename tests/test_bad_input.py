@@ -42,6 +42,16 @@ def _truncate(path: Path) -> None:
 # (case id, args with RUN = a damaged copy of the template run and FILE = an existing file, damage)
 CLI_CASES = [
     ("unknown verb", ["fly"], None, "invalid choice"),
+    ("render without a run", ["render", "--run", "nope"], None, "not a run directory"),
+    (
+        "render compare and backend",
+        ["render", "--run", "RUN", "--compare", "--backend", "newton"],
+        None,
+        "drop --backend",
+    ),
+    ("render on an unknown backend", ["render", "--run", "RUN", "--backend", "bullet"], None, "unknown backend"),
+    ("render without a policy", ["render", "--run", "RUN"], "missing_checkpoint", "has no checkpoint.pt"),
+    ("render zero frames", ["render", "--run", "RUN", "--frames", "0"], None, "positive integer"),
     ("train without --out", ["train", *ANT, "--algo", "shac", "--epochs", "1"], None, "needs --out"),
     (
         "unknown backend",

@@ -44,6 +44,7 @@ from harness.cli.runs import (
     cmd_eval,
     cmd_landscape,
     cmd_list,
+    cmd_render,
     cmd_report,
     cmd_sweep,
     cmd_train,
@@ -72,6 +73,7 @@ VERBS = {
     "bench": cmd_bench,
     "bench-run": cmd_bench_run,
     "landscape": cmd_landscape,
+    "render": cmd_render,
 }
 
 

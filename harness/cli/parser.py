@@ -204,6 +204,11 @@ VERB_HELP: dict[str, dict[str, str]] = {
     },
     "scaling-plot": {"out": "the plot to write (.png)"},
     "landscape": {"num_envs": "envs of the window whose losses are mapped"},
+    "render": {
+        "run": "run directory written by `train` (its checkpoint.pt is the policy shown)",
+        "backend": "the engine to show it on (default: the one it trained on)",
+        "max_steps": "control steps shown at most, fewer when the episode ends (default 300)",
+    },
     "solver-probe": {
         "num_envs": "envs of the random-action rollout",
         "max_steps": "control steps of each probe rollout",
@@ -487,6 +492,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--grid", type=_positive_int, default=40, help="points per axis (default: %(default)s)")
     p.add_argument("--span", type=_positive_float, default=1.0, help="each axis spans [-span, span] (default: 1)")
     p.add_argument("--warmup-steps", type=_nonnegative_int, default=0, help="policy steps before the window")
+
+    p = sub.add_parser("render", help="a video and a filmstrip of a run's final policy (headless)")
+    _add(p, "render", "run", "backend", "max_steps", required=("run",))
+    p.add_argument("--compare", action="store_true", help="both engines side by side, the same policy and seed")
+    p.add_argument("--frames", type=_positive_int, default=60, help="frames drawn, evenly spaced (default: 60)")
 
     p = sub.add_parser("solver-probe", help="Newton solver/contact settings: forward stability and gradient size")
     _add(p, "solver-probe", "backend", "task", "num_envs", "max_steps", "out")

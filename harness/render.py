@@ -1,0 +1,130 @@
+"""``python -m harness render --run DIR``: a run's final policy, seen.
+
+The policy acts deterministically in one env (evaluation seed 10,000, as ``eval``'s first) on the run's
+own backend, another one (``--backend``, sim-to-sim), or both side by side (``--compare``), for at
+most ``steps`` control steps or until its episode ends. ``frames`` states evenly spaced over that
+window are drawn (:mod:`backends.render`: MuJoCo's offscreen renderer for rigid tasks, the tet mesh's
+surface for the SoftJumper) and written as a video (MP4 when ``ffmpeg`` is on the PATH, else an
+animated GIF) and a PNG filmstrip of six of them, each labelled with its step and the return so far.
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from harness.results import RunError
+
+FILMSTRIP_FRAMES = 6
+EVAL_SEED = 10_000  # evaluate()'s first seed
+
+
+def rollout(run_dir: Path, backend: str, steps: int) -> tuple[object, list[np.ndarray], list[float]]:
+    """The task, env 0's state before each step (what the scene draws) and the return so far."""
+    from algorithms.actor_critic import FirstOrderActorCritic
+    from backends.render import state_picture_input
+    from harness.envs import make_env, run_task
+    from harness.train import CHECKPOINT, load_checkpoint, read_config
+
+    config = read_config(run_dir)
+    if not (run_dir / CHECKPOINT).is_file():
+        raise RunError(f"{run_dir} has no {CHECKPOINT}: render needs the run's final policy (train or --resume it)")
+    cfg = config["algo_config"]
+    torch.manual_seed(EVAL_SEED)
+    options = config.get("backend_options") if backend == config["backend"] else None
+    env = make_env(run_task(config), backend, 1, config["device"], EVAL_SEED, cfg.horizon, options=options)
+    algo = FirstOrderActorCritic(cfg, env.obs_dim, env.action_dim)
+    load_checkpoint(run_dir / CHECKPOINT, algo)
+    obs = env.reset()
+    states, returns, total = [], [], 0.0
+    with torch.no_grad():
+        for _ in range(steps):
+            states.append(state_picture_input(env.task, env.sim.state))
+            returns.append(total)
+            step = env.step(algo.act(obs, deterministic=True))
+            total += float(step.reward[0])
+            obs = step.obs
+            if bool(step.done[0]):  # the env has reset: the episode's last state is not drawn twice
+                break
+    return env.task, states, returns
+
+
+def _label(image: np.ndarray, text: str) -> np.ndarray:
+    from PIL import Image, ImageDraw
+
+    picture = Image.fromarray(image)
+    draw = ImageDraw.Draw(picture)
+    draw.rectangle((0, 0, picture.width, 18), fill=(255, 255, 255))
+    draw.text((4, 3), text, fill=(0, 0, 0))
+    return np.asarray(picture)
+
+
+def frames_of(run_dir: Path, backend: str, steps: int, frames: int) -> tuple[list[np.ndarray], list[int]]:
+    """``frames`` labelled pictures of the policy on ``backend`` and the steps they show."""
+    from backends.render import scene_for
+
+    task, states, returns = rollout(run_dir, backend, steps)
+    picks = sorted(set(np.linspace(0, len(states) - 1, min(frames, len(states))).round().astype(int).tolist()))
+    scene = scene_for(task)
+    try:
+        pictures = [_label(scene.frame(states[k]), f"{backend}  step {k}  return {returns[k]:.1f}") for k in picks]
+    finally:
+        scene.close()
+    return pictures, picks
+
+
+def write_video(pictures: list[np.ndarray], stem: Path, fps: int = 10) -> Path:
+    """MP4 through ffmpeg when it is installed, else an animated GIF; written whole or not at all."""
+    ffmpeg = shutil.which("ffmpeg")
+    if ffmpeg:
+        out = stem.with_suffix(".mp4")
+        height, width = pictures[0].shape[:2]
+        with tempfile.NamedTemporaryFile(dir=out.parent, suffix=".mp4", delete=False) as tmp:
+            pass
+        command = [ffmpeg, "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24"]
+        command += ["-s", f"{width}x{height}", "-r", str(fps), "-i", "-", "-pix_fmt", "yuv420p", tmp.name]
+        subprocess.run(command, input=b"".join(p.tobytes() for p in pictures), check=True)
+        Path(tmp.name).replace(out)
+        return out
+    from PIL import Image
+
+    out = stem.with_suffix(".gif")
+    tmp = out.with_name(f".{out.name}.tmp.gif")
+    first, *rest = [Image.fromarray(p) for p in pictures]
+    first.save(tmp, save_all=True, append_images=rest, duration=int(1000 / fps), loop=0)
+    tmp.replace(out)
+    return out
+
+
+def write_filmstrip(pictures: list[np.ndarray], path: Path) -> Path:
+    """Six of the pictures, evenly spaced, in a row (PNG, written whole or not at all)."""
+    from PIL import Image
+
+    picks = np.linspace(0, len(pictures) - 1, min(FILMSTRIP_FRAMES, len(pictures))).round().astype(int)
+    tmp = path.with_name(f".{path.name}.tmp.png")
+    Image.fromarray(np.concatenate([pictures[k] for k in picks], axis=1)).save(tmp)
+    tmp.replace(path)
+    return path
+
+
+def render(run_dir: str | Path, backends: list[str], steps: int, frames: int, stream=None) -> list[Path]:
+    """Write the video and filmstrip of the run's final policy on ``backends`` (two: side by side)."""
+    run_dir = Path(run_dir)
+    stream = stream or sys.stdout
+    panels = []
+    for backend in backends:
+        print(f"render {run_dir.name} on {backend}: {steps} steps at most, {frames} frames", file=stream, flush=True)
+        panels.append(frames_of(run_dir, backend, steps, frames)[0])
+    # an episode that ends earlier on one engine keeps showing its last frame beside the other
+    longest = max(len(p) for p in panels)
+    pictures = [np.concatenate([p[min(k, len(p) - 1)] for p in panels], axis=1) for k in range(longest)]
+    stem = run_dir / ("render_compare" if len(backends) > 1 else f"render_{backends[0]}")
+    written = [write_video(pictures, stem), write_filmstrip(pictures, stem.with_name(stem.name + "_filmstrip.png"))]
+    print(f"wrote {', '.join(str(p) for p in written)}", file=stream, flush=True)
+    return written

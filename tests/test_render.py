@@ -1,0 +1,96 @@
+"""``render``: a video and a filmstrip of a run's policy, headless; the frames exist, change over time and
+show the robot (pixels that differ from the same view without it)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("newton")
+pytest.importorskip("mujoco")
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _env() -> dict:
+    return os.environ | {"MUJOCO_GL": "egl", "OMP_NUM_THREADS": "1", "PYTHONPATH": str(ROOT)}
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory) -> Path:
+    from algorithms.config import preset
+    from harness.train import train
+
+    run = tmp_path_factory.mktemp("render") / "run"
+    cfg = preset("shac").replace(num_envs=4, horizon=2, critic_iterations=1)
+    train(run, "ant", "newton", cfg, epochs=1, seed=0, stream=open("/dev/null", "w"))
+    return run
+
+
+def test_render_writes_a_video_and_a_filmstrip_that_move(run):
+    from PIL import Image, ImageSequence
+
+    out = subprocess.run(
+        [sys.executable, "-m", "harness", "render", "--run", str(run), "--max-steps", "30", "--frames", "5"],
+        capture_output=True,
+        text=True,
+        env=_env(),
+        cwd=ROOT,
+        timeout=600,
+    )
+    assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-2000:]
+    video = next(run.glob("render_newton.*"))
+    assert f"wrote {video}" in out.stdout and video.suffix in (".gif", ".mp4")
+    if video.suffix == ".gif":
+        frames = [np.asarray(f.convert("RGB"), dtype=int) for f in ImageSequence.Iterator(Image.open(video))]
+        assert len(frames) == 5
+        assert np.abs(frames[0] - frames[-1]).sum(-1).astype(bool).mean() > 0.01  # the scene changed
+    strip = Image.open(run / "render_newton_filmstrip.png")
+    assert strip.size == (5 * 480, 360)
+
+
+def test_a_rigid_frame_shows_the_robot():
+    """The same camera with the robot in view and moved 100 m away: the robot covers pixels."""
+    script = """
+import json, numpy as np, torch
+from backends.render import RigidScene
+from tasks import make_task
+for name, height in (("ant", 0.6), ("go2", 0.35)):
+    task = make_task(name)
+    scene = RigidScene(task)
+    q = torch.zeros(task.layout.nq, dtype=torch.float64).numpy()
+    q[2], q[6] = height, 1.0
+    far = q.copy()
+    far[0] += 100.0
+    seen, empty = scene.frame(q).astype(int), scene.frame(far, lookat=q[:3]).astype(int)
+    print(json.dumps({"task": name, "robot": float((np.abs(seen - empty).sum(-1) > 30).mean())}))
+"""
+    out = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, env=_env(), cwd=ROOT, timeout=600
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    for line in out.stdout.splitlines():
+        result = json.loads(line)
+        assert result["robot"] > 0.01, result
+
+
+def test_a_soft_frame_draws_the_meshs_surface():
+    from backends.render import SoftScene
+    from tasks import make_task
+
+    task = make_task("soft_jumper")
+    scene = SoftScene(task)
+    rest = task.soft_body.vertices.numpy()
+    image = scene.frame(rest)
+    assert image.shape == (360, 480, 3)
+    orange = (image[..., 0] > 180) & (image[..., 1] > 100) & (image[..., 1] < 170) & (image[..., 2] < 110)
+    assert orange.mean() > 0.01  # the body's faces
+    assert len(scene.surface) < 4 * task.soft_body.num_tets  # boundary faces only
+    lifted = scene.frame(rest + np.array([0.0, 0.0, 0.5]))
+    assert np.abs(lifted.astype(int) - image.astype(int)).sum() > 0  # a moved body is drawn elsewhere
