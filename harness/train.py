@@ -52,6 +52,8 @@ from harness.results import (
     writable_parent,
     write_json,
 )
+from harness.tensorboard import FOLDER as TENSORBOARD_FOLDER
+from harness.tensorboard import EpochScalars
 
 CONFIG = "config.json"
 METRICS = "metrics.jsonl"
@@ -386,6 +388,7 @@ def _run(
             flush=True,
         )
     bar = _Progress(epochs, algo.epoch, stream)
+    scalars = EpochScalars(run_dir, algo.epoch)  # TensorBoard's view of metrics.jsonl
     from backends.contract import NonFiniteStateError
 
     with _SignalStop(stream) as stop:
@@ -418,15 +421,19 @@ def _run(
                     "train_episode_return_avg": avg,
                 }
                 _append_metrics(metrics_path, row)
+                scalars.write(row)
                 bar.update(algo.epoch - 1, row)
                 if algo.epoch % checkpoint_every == 0 or algo.epoch == epochs or stop.signum is not None:
                     save_checkpoint(ckpt_path, algo, env, progress)
         except KeyboardInterrupt:  # a second signal mid-epoch: no checkpoint of a half-done epoch
             print(f"\nstopped now: {run_dir} resumes from its last checkpoint with --resume", file=stream)
             raise
+        finally:
+            scalars.close()
     if stop.signum is not None and algo.epoch < epochs:
         raise RunStopped(run_dir, algo.epoch, stop.signum)
     names = [p.name for p in (config_path, metrics_path, ckpt_path, run_dir / INIT_CHECKPOINT) if p.exists()]
+    names.append(f"{TENSORBOARD_FOLDER}/ (tensorboard --logdir {run_dir})")
     print(f"wrote {run_dir}: {', '.join(names)}", file=stream, flush=True)
     return run_dir
 
