@@ -25,7 +25,10 @@
   ``max_steps``);
 * ``[[landscape]]``: runs of the grid (selected as for sim-to-sim, ``backend`` for ``train_backend``)
   whose h-step and TD-lambda actor losses are mapped over a ``grid`` x ``grid`` plane (``span``,
-  ``num_envs``).
+  ``num_envs``);
+* ``[[render]]``: runs of the grid (selected as for a landscape) whose final policy is rendered
+  (``max_steps``, ``frames``, ``compare`` for both engines side by side): a video and a filmstrip in the
+  run's folder, the filmstrips shown in the report's index.
 
 Layout: ``STORE/NAME/`` (``--store``, default ``results/bench``; NAME is the spec's ``[suite] name``)
 holds the tables and plots, ``runs/``, ``checks/`` and ``logs/``. Give two specs the same name (or
@@ -588,6 +591,29 @@ def plan(data: dict, store: Path) -> list[Job]:
                     estimate_s=_STARTUP_S + grid * grid * num_envs * source.run.horizon * 5e-4,
                     cost_key=("landscape", source.run.backend, source.run.task),
                     expect={"grid": grid, "span": span, "num_envs": num_envs},
+                    after=[source.label],
+                )
+            )
+    from harness.render import record_stem
+
+    for i, block in enumerate(data.get("render", [])):
+        where = f"[[render]] #{i + 1}"
+        for source in select(block, where, "backend"):
+            compare = bool(block.get("compare", False))
+            max_steps, frames = int(block.get("max_steps", 300)), int(block.get("frames", 60))
+            words = ["--max-steps", max_steps, "--frames", frames] + (["--compare"] if compare else [])
+            shown = [source.run.backend, "mujoco_warp" if source.run.backend == "newton" else "newton"]
+            out = record_stem(source.run_dir, shown if compare else shown[:1]).with_suffix(".json")
+            per_frame = (2.0 if source.run.task == "soft_jumper" else 0.5) * (2 if compare else 1)
+            jobs.append(
+                Job(
+                    label=f"render {source.label}" + (" (compare)" if compare else ""),
+                    kind="render",
+                    argv=_harness("render", "--run", source.run_dir, *words),
+                    output=out,
+                    estimate_s=_STARTUP_S + frames * per_frame,
+                    cost_key=("render", source.run.backend, source.run.task),
+                    expect={"max_steps": max_steps, "frames": frames},
                     after=[source.label],
                 )
             )

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from harness.results import RunError
+from harness.results import RunError, atomic_write_bytes, provenance, write_json
 
 FILMSTRIP_FRAMES = 6
 EVAL_SEED = 10_000  # evaluate()'s first seed
@@ -92,25 +92,26 @@ def write_video(pictures: list[np.ndarray], stem: Path, fps: int = 10) -> Path:
         subprocess.run(command, input=b"".join(p.tobytes() for p in pictures), check=True)
         Path(tmp.name).replace(out)
         return out
+    import io
+
     from PIL import Image
 
-    out = stem.with_suffix(".gif")
-    tmp = out.with_name(f".{out.name}.tmp.gif")
     first, *rest = [Image.fromarray(p) for p in pictures]
-    first.save(tmp, save_all=True, append_images=rest, duration=int(1000 / fps), loop=0)
-    tmp.replace(out)
-    return out
+    buffer = io.BytesIO()
+    first.save(buffer, format="GIF", save_all=True, append_images=rest, duration=int(1000 / fps), loop=0)
+    return atomic_write_bytes(stem.with_suffix(".gif"), buffer.getvalue())
 
 
 def write_filmstrip(pictures: list[np.ndarray], path: Path) -> Path:
     """Six of the pictures, evenly spaced, in a row (PNG, written whole or not at all)."""
+    import io
+
     from PIL import Image
 
     picks = np.linspace(0, len(pictures) - 1, min(FILMSTRIP_FRAMES, len(pictures))).round().astype(int)
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    Image.fromarray(np.concatenate([pictures[k] for k in picks], axis=1)).save(tmp)
-    tmp.replace(path)
-    return path
+    buffer = io.BytesIO()
+    Image.fromarray(np.concatenate([pictures[k] for k in picks], axis=1)).save(buffer, format="PNG")
+    return atomic_write_bytes(path, buffer.getvalue())
 
 
 def render(run_dir: str | Path, backends: list[str], steps: int, frames: int, stream=None) -> list[Path]:
@@ -124,7 +125,15 @@ def render(run_dir: str | Path, backends: list[str], steps: int, frames: int, st
     # an episode that ends earlier on one engine keeps showing its last frame beside the other
     longest = max(len(p) for p in panels)
     pictures = [np.concatenate([p[min(k, len(p) - 1)] for p in panels], axis=1) for k in range(longest)]
-    stem = run_dir / ("render_compare" if len(backends) > 1 else f"render_{backends[0]}")
+    stem = record_stem(run_dir, backends)
     written = [write_video(pictures, stem), write_filmstrip(pictures, stem.with_name(stem.name + "_filmstrip.png"))]
+    record = {"backends": backends, "max_steps": steps, "frames": frames, "steps_shown": [len(p) for p in panels]}
+    record |= {"files": [p.name for p in written], "provenance": provenance()}
+    written.append(write_json(stem.with_suffix(".json"), record))
     print(f"wrote {', '.join(str(p) for p in written)}", file=stream, flush=True)
     return written
+
+
+def record_stem(run_dir: Path, backends: list[str]) -> Path:
+    """``RUN/render_BACKEND`` or ``RUN/render_compare``: the stem of the video, filmstrip and record."""
+    return Path(run_dir) / ("render_compare" if len(backends) > 1 else f"render_{backends[0]}")

@@ -85,6 +85,11 @@ def one_or_many(item: Check) -> Check:
     return check
 
 
+def boolean(value, path: str) -> None:
+    if not isinstance(value, bool):
+        _fail(path, "true or false", value)
+
+
 def words(value, path: str) -> None:
     """A check's extra command-line words: a list of strings and numbers."""
     if not isinstance(value, list):
@@ -230,6 +235,11 @@ LANDSCAPE = table(
     | {"num_envs": integer(1, MAX_ENVS)},
     required=("task", "backend"),
 )
+RENDER = table(
+    {**SELECTION, "backend": backend, "compare": boolean}
+    | {"max_steps": integer(1, 10**5), "frames": integer(1, 1000)},
+    required=("task", "backend"),
+)
 SUITE = table(
     {
         "name": text(pattern=NAME_PATTERN),
@@ -260,6 +270,7 @@ SCHEMA = table(
         "check": _blocks(CHECK),
         "sim_to_sim": _blocks(SIM_TO_SIM),
         "landscape": _blocks(LANDSCAPE),
+        "render": _blocks(RENDER),
     },
     required=("suite",),
 )
@@ -273,7 +284,7 @@ def validate_spec(data: dict, where: str = "spec") -> dict:
         SCHEMA(data, "")
     except RunError as exc:
         message = str(exc).removeprefix(": ")  # the top level's own path is empty
-        message = re.sub(r"^(train|check|sim_to_sim|landscape)\b", r"[[\1]]", message)
+        message = re.sub(r"^(train|check|sim_to_sim|landscape|render)\b", r"[[\1]]", message)
         message = re.sub(r"^(suite|eval)\b", r"[\1]", message)
         raise RunError(message if message.startswith("[") else f"{where}: {message}") from None
     for k, block in enumerate(data.get("train", [])):

@@ -165,6 +165,12 @@ CASES = [
     (("landscape", 0, "algos"), ["sapo"], "selects no run"),
     (("landscape", 0, "seeds"), [True], "an integer"),
     (("landscape", 0, "resolution"), 40, "unknown key(s) resolution"),
+    # [[render]]
+    (("render",), [{"task": "ant", "backend": "newton", "horizon": 32, "frames": 0}], "[[render]] #1 frames"),
+    (("render",), [{"task": "ant", "backend": "newton", "horizon": 32, "compare": "yes"}], "true or false"),
+    (("render",), [{"task": "ant", "backend": "newton", "horizon": 32, "max_steps": -5}], "max_steps"),
+    (("render",), [{"task": "ant", "backend": "newton", "horizon": 16}], "selects no run"),
+    (("render",), [{"task": "ant", "horizon": 32}], "needs backend"),
     # the top level
     (("report",), {"format": "html"}, "unknown key(s) report"),
     (("sim2sim",), [], "unknown key(s) sim2sim"),

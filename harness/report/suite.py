@@ -21,7 +21,7 @@ from harness.report.plots import (
     pyplot,
 )
 from harness.report.records import by_group, load_check, load_run, say
-from harness.results import atomic_write_text
+from harness.results import atomic_write_bytes, atomic_write_text
 
 
 def write_bench_report(runs: list[Path], checks: list[Path], out_dir: Path, header: dict, stream=None) -> list[Path]:
@@ -70,6 +70,7 @@ def write_bench_report(runs: list[Path], checks: list[Path], out_dir: Path, head
             skipped.append(f"{name}: failed: {type(exc).__name__}: {exc}")
             path.unlink(missing_ok=True)
             pyplot()[0].close("all")  # the half-drawn figure
+    plotted += copy_filmstrips(records, out_dir)
     landscape_pngs, landscape_skipped = plot_landscapes(records, out_dir)
     plotted += landscape_pngs
     skipped += landscape_skipped
@@ -79,6 +80,22 @@ def write_bench_report(runs: list[Path], checks: list[Path], out_dir: Path, head
     headline = headline_lines(tables, records, plotted)
     written.append(write_index(tables, plotted, skipped, out_dir, header, headline))
     return written
+
+
+def copy_filmstrips(records, out_dir: Path) -> list[Path]:
+    """One filmstrip per task and engine(s) shown (``render`` wrote it into a run's folder; the lowest
+    seed's), copied beside the tables as ``filmstrip_TASK_SHOWN.png`` so the report holds it."""
+    chosen: dict[tuple[str, str], Path] = {}
+    for record in sorted(records, key=lambda r: (r.seed, r.algo)):
+        for strip in sorted(record.path.glob("render_*_filmstrip.png")):
+            shown = strip.name.removeprefix("render_").removesuffix("_filmstrip.png")
+            chosen.setdefault((record.task, shown), strip)
+    copied = []
+    for (task, shown), strip in sorted(chosen.items()):
+        target = out_dir / f"filmstrip_{task}_{shown}.png"
+        atomic_write_bytes(target, strip.read_bytes())
+        copied.append(target)
+    return copied
 
 
 HEADLINE_PLOTS = ("learning_curves_steps.png", "performance_profile.png", "grad_variance_vs_h.png")
@@ -109,7 +126,26 @@ def headline_lines(tables: list[Table], records, plotted: list[Path]) -> list[st
     for name in HEADLINE_PLOTS:
         if name in names:
             lines += [f"![{PLOT_DESCRIPTIONS[name]}]({name})", ""]
+    for name in sorted(n for n in names if n.startswith("filmstrip_")):
+        lines += [f"![{filmstrip_description(name)}]({name})", ""]
     return lines if len(lines) > 2 else []
+
+
+def filmstrip_description(name: str) -> str:
+    """``filmstrip_TASK_SHOWN.png`` in words."""
+    import tasks
+
+    rest = name.removeprefix("filmstrip_").removesuffix(".png")
+    task = next((t for t in sorted(tasks.available(), key=len, reverse=True) if rest.startswith(t + "_")), "")
+    shown = rest.removeprefix(task + "_") if task else rest
+    where = "both engines side by side" if shown == "compare" else f"on {shown}"
+    return f"the final policy{f' on {task}' if task else ''}, {where} (harness render)"
+
+
+def _other_description(name: str) -> str:
+    if name.startswith("filmstrip_"):
+        return filmstrip_description(name)
+    return "actor-loss landscape, h-step vs TD-lambda (harness.landscape.plot_landscape)"
 
 
 def write_index(
@@ -127,8 +163,7 @@ def write_index(
         "(command, commit, time, packages, machine, what the numbers rest on).",
     ]
     lines += ["", "## Plots", ""]
-    landscape = "actor-loss landscape, h-step vs TD-lambda (harness.landscape.plot_landscape)"
-    lines += [f"- `{p.name}`: {PLOT_DESCRIPTIONS.get(p.name, landscape)}" for p in plotted]
+    lines += [f"- `{p.name}`: {PLOT_DESCRIPTIONS.get(p.name) or _other_description(p.name)}" for p in plotted]
     if not plotted:
         lines.append("- none")
     if skipped:
