@@ -11,10 +11,8 @@ import torch
 
 pytest.importorskip("newton")
 
-from algorithms.config import preset  # noqa: E402
 from backends import InvalidActionError, InvalidStateError, make  # noqa: E402
 from harness.cli import main  # noqa: E402
-from harness.train import train  # noqa: E402
 from simcore import PhysicsSpec  # noqa: E402
 from tasks import make_task  # noqa: E402
 
@@ -23,12 +21,9 @@ TRAIN = ["train", *ANT, "--algo", "shac", "--epochs", "1", "--num-envs", "4", "-
 
 
 @pytest.fixture(scope="module")
-def template(tmp_path_factory) -> Path:
+def template(one_epoch_ant_run) -> Path:
     """A finished one-epoch run that each case copies and damages."""
-    run = tmp_path_factory.mktemp("template") / "run"
-    cfg = preset("shac").replace(num_envs=4, horizon=4, critic_iterations=1)
-    train(run, "ant", "newton", cfg, epochs=1, seed=0, stream=open("/dev/null", "w"))
-    return run
+    return one_epoch_ant_run
 
 
 def _snapshot(root: Path) -> dict:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -22,15 +23,10 @@ def _env() -> dict:
     return os.environ | {"MUJOCO_GL": "egl", "OMP_NUM_THREADS": "1", "PYTHONPATH": str(ROOT)}
 
 
-@pytest.fixture(scope="module")
-def run(tmp_path_factory) -> Path:
-    from algorithms.config import preset
-    from harness.train import train
-
-    run = tmp_path_factory.mktemp("render") / "run"
-    cfg = preset("shac").replace(num_envs=4, horizon=2, critic_iterations=1)
-    train(run, "ant", "newton", cfg, epochs=1, seed=0, stream=open("/dev/null", "w"))
-    return run
+@pytest.fixture
+def run(one_epoch_ant_run, tmp_path) -> Path:
+    shutil.copytree(one_epoch_ant_run, tmp_path / "run")
+    return tmp_path / "run"
 
 
 def test_render_writes_a_video_and_a_filmstrip_that_move(run):
