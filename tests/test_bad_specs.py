@@ -195,7 +195,9 @@ def test_the_valid_spec_plans(tmp_path):
 
 
 @pytest.mark.parametrize(
-    "where, value, needle", CASES, ids=[" ".join(map(str, c[0])) + f"={c[1]!r}"[:40] for c in CASES]
+    "where, value, needle",
+    CASES,
+    ids=[" ".join(map(str, c[0])) + ("=DROP" if c[1] is DROP else f"={c[1]!r}"[:40]) for c in CASES],
 )
 def test_a_malformed_spec_is_refused_in_one_line(where, value, needle, tmp_path):
     with pytest.raises(RunError) as info:
