@@ -476,6 +476,7 @@ def evaluate(
             env = make_env(run_task(config), backend, n, config["device"], eval_seed, cfg.horizon, options=options)
             algo = FirstOrderActorCritic(cfg, env.obs_dim, env.action_dim)
             load_checkpoint(run_dir / name, algo)
+            evaluated_epoch = algo.epoch  # the final policy's: a later resume makes this evaluation stale
             obs = env.reset()
             first_return = torch.full((n,), float("nan"))
             first_length = torch.zeros(n, dtype=torch.long)
@@ -519,6 +520,7 @@ def evaluate(
         "max_steps": max_steps,
         "backend": backend,
         "trained_on": trained_on,
+        "policy_epoch": evaluated_epoch,
         **results,
         "provenance": provenance(),
     }

@@ -583,3 +583,17 @@ def test_the_index_leads_with_the_headline(suite):
     headline = index[index.index("## Headline") : index.index("## Tables")]
     assert "| ant | newton | shac-tdadpt |" in headline and "IQM normalised" in headline
     assert "](learning_curves_steps.png)" in headline and "](performance_profile.png)" in headline
+
+
+def test_an_evaluation_of_an_earlier_epoch_is_stale(tmp_path):
+    """``train --resume --epochs`` extends a run after its eval.json was written: that evaluation is of
+    an earlier policy and is not counted as the run's final return."""
+    log = io.StringIO()
+    fresh = make_run(tmp_path, "ant", "newton", "shac", 0, 16, final=5.0, grad_var=[1.0] * EPOCHS)
+    assert load_run(fresh, log).evaluation is not None
+    (fresh / "eval.json").write_text(json.dumps(_eval_payload(5.0, policy_epoch=EPOCHS)))
+    assert load_run(fresh, log).evaluation is not None
+    extended = make_run(tmp_path, "ant", "newton", "shac", 1, 16, final=5.0, grad_var=[1.0] * EPOCHS)
+    (extended / "eval.json").write_text(json.dumps(_eval_payload(5.0, policy_epoch=EPOCHS - 2)))
+    assert load_run(extended, log).evaluation is None
+    assert f"evaluates epoch {EPOCHS - 2} of {EPOCHS}: stale" in log.getvalue()

@@ -175,6 +175,12 @@ def load_run(run_dir: Path, stream=None) -> RunRecord | None:
     if evaluation is not None and not _has_returns(evaluation):
         say(stream, f"{run_dir}/eval.json has no initial/final mean_return: counted as not evaluated")
         evaluation = None
+    trained = len(metrics.get("epoch", ()))
+    if evaluation is not None and int(evaluation.get("policy_epoch", trained)) < trained:
+        say(
+            stream, f"{run_dir}/eval.json evaluates epoch {evaluation['policy_epoch']} of {trained}: stale, not counted"
+        )
+        evaluation = None
     cross = {}
     for prefix in SIM_TO_SIM_PREFIXES:
         for path in sorted(run_dir.glob(f"{prefix}*.json")):
