@@ -89,8 +89,12 @@ def write_video(pictures: list[np.ndarray], stem: Path, fps: int = 10) -> Path:
             pass
         command = [ffmpeg, "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24"]
         command += ["-s", f"{width}x{height}", "-r", str(fps), "-i", "-", "-pix_fmt", "yuv420p", tmp.name]
-        subprocess.run(command, input=b"".join(p.tobytes() for p in pictures), check=True)
-        Path(tmp.name).replace(out)
+        try:
+            subprocess.run(command, input=b"".join(p.tobytes() for p in pictures), check=True)
+            Path(tmp.name).replace(out)
+        except BaseException:
+            Path(tmp.name).unlink(missing_ok=True)
+            raise
         return out
     import io
 
