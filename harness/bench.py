@@ -594,7 +594,7 @@ def plan(data: dict, store: Path) -> list[Job]:
                     after=[source.label],
                 )
             )
-    from harness.render import record_stem
+    from harness.render import compared_backends, record_stem
 
     for i, block in enumerate(data.get("render", [])):
         where = f"[[render]] #{i + 1}"
@@ -602,8 +602,8 @@ def plan(data: dict, store: Path) -> list[Job]:
             compare = bool(block.get("compare", False))
             max_steps, frames = int(block.get("max_steps", 300)), int(block.get("frames", 60))
             words = ["--max-steps", max_steps, "--frames", frames] + (["--compare"] if compare else [])
-            shown = [source.run.backend, "mujoco_warp" if source.run.backend == "newton" else "newton"]
-            out = record_stem(source.run_dir, shown if compare else shown[:1]).with_suffix(".json")
+            shown = compared_backends(source.run.backend) if compare else [source.run.backend]
+            out = record_stem(source.run_dir, shown).with_suffix(".json")
             per_frame = (2.0 if source.run.task == "soft_jumper" else 0.5) * (2 if compare else 1)
             jobs.append(
                 Job(

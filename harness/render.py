@@ -138,6 +138,16 @@ def render(run_dir: str | Path, backends: list[str], steps: int, frames: int, st
     return written
 
 
+def compared_backends(trained_on: str) -> list[str]:
+    """``--compare``'s engines: the one the run trained on, then the other of Newton and MuJoCo-Warp."""
+    import backends
+
+    others = [b for b in ("newton", "mujoco_warp") if b != trained_on and b in backends.available()]
+    if not others:
+        raise RunError(f"--compare needs a second engine besides {trained_on}")
+    return [trained_on, others[0]]
+
+
 def record_stem(run_dir: Path, backends: list[str]) -> Path:
     """``RUN/render_BACKEND`` or ``RUN/render_compare``: the stem of the video, filmstrip and record."""
     return Path(run_dir) / ("render_compare" if len(backends) > 1 else f"render_{backends[0]}")

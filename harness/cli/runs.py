@@ -179,8 +179,7 @@ def cmd_render(args) -> int:
     from pathlib import Path
 
     os.environ.setdefault("MUJOCO_GL", "egl")  # before anything imports MuJoCo: headless rendering
-    import backends
-    from harness.render import render
+    from harness.render import compared_backends, render
     from harness.train import read_config
 
     trained_on = read_config(Path(args.run))["backend"]
@@ -188,10 +187,7 @@ def cmd_render(args) -> int:
         raise BadInput("--compare shows both engines; drop --backend")
     if args.backend:
         _validate_names(args.backend, None)
-    others = [b for b in backends.available() if b != trained_on and b in ("newton", "mujoco_warp")]
-    shown = [trained_on, *others[:1]] if args.compare else [args.backend or trained_on]
-    if args.compare and len(shown) < 2:
-        raise BadInput(f"--compare needs a second engine besides {trained_on}")
+    shown = compared_backends(trained_on) if args.compare else [args.backend or trained_on]
     render(args.run, shown, args.max_steps or 300, args.frames)
     return 0
 

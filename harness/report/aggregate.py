@@ -137,11 +137,12 @@ _COLUMNS = [
 ]
 
 
-def performance_profile_frame(runs: list[RunRecord]) -> pd.DataFrame:
+def performance_profile_frame(scores: dict[str, dict[str, dict[str, np.ndarray]]]) -> pd.DataFrame:
     """Per backend and algorithm, the performance profile (fraction of runs above each threshold tau of
-    normalised score, averaged over tasks) with its 95% band, on one threshold grid per backend."""
+    normalised score, averaged over tasks) with its 95% band, on one threshold grid per backend, from
+    :func:`normalised_scores`."""
     rows = []
-    for backend, by_algo in normalised_scores(runs).items():
+    for backend, by_algo in scores.items():
         every = np.concatenate([s for per_task in by_algo.values() for s in per_task.values()])
         taus = np.linspace(min(0.0, float(every.min())), max(1.0, float(every.max())), PROFILE_POINTS)
         for algo in sorted(by_algo, key=rank):
@@ -157,7 +158,8 @@ def plot_performance_profiles(runs: list[RunRecord], path):
     """One panel per backend: each algorithm's performance profile with its 95% band."""
     from harness.report.plots import NoPlotData, _algo_palette, pyplot, save_figure
 
-    frame = performance_profile_frame(runs)
+    scores = normalised_scores(runs)
+    frame = performance_profile_frame(scores)
     if frame.empty:
         raise NoPlotData("no task has evaluated runs that improved on the untrained policy")
     plt, _ = pyplot()
@@ -168,7 +170,7 @@ def plot_performance_profiles(runs: list[RunRecord], path):
         for algo, curve in frame[frame["backend"] == backend].groupby("algo", sort=False):
             ax.plot(curve["tau"], curve["fraction"], color=palette[algo], label=algo)
             ax.fill_between(curve["tau"], curve["low"], curve["high"], color=palette[algo], alpha=0.15, lw=0)
-        tasks = sorted({t for s in normalised_scores(runs)[backend].values() for t in s})
+        tasks = sorted({t for s in scores[backend].values() for t in s})
         ax.set_title(f"{backend} ({', '.join(tasks)})")
         ax.set_xlabel("normalised score tau")
         ax.set_ylabel("fraction of runs with score > tau")
