@@ -168,13 +168,7 @@ class BatchedSim(ABC):
         self.device = torch.device(device)
         self.seed = int(seed)
         self.max_graph_steps = max_graph_steps
-        # the task's validated settings for this adapter first, explicit options on top
-        self.options = {**dict(getattr(task, "backend_options", {}).get(self.name, {})), **options}
-        if self.known_options is not None:
-            unknown = sorted(set(self.options) - set(self.known_options))
-            if unknown:
-                known = ", ".join(self.known_options) or "none"
-                raise BackendError(f"the {self.name} adapter has no option {unknown[0]!r}; its options: {known}")
+        self.options = self.merged_options(task, options)
         self.generator = torch.Generator(device="cpu").manual_seed(self.seed)
         self.step_count = 0
         supported = self.supported_control_kinds()
@@ -201,6 +195,18 @@ class BatchedSim(ABC):
     def integrator(self) -> str:
         """The engine's integrator in words (result files and ``throughput`` name it)."""
         return self.name
+
+    @classmethod
+    def merged_options(cls, task, options: dict | None = None) -> dict:
+        """The options an adapter of this class is built with for ``task``: the task's validated settings
+        for it first, explicit ``options`` on top; a name outside :attr:`known_options` is refused."""
+        merged = {**dict(getattr(task, "backend_options", {}).get(cls.name, {})), **(options or {})}
+        if cls.known_options is not None:
+            unknown = sorted(set(merged) - set(cls.known_options))
+            if unknown:
+                known = ", ".join(cls.known_options) or "none"
+                raise BackendError(f"the {cls.name} adapter has no option {unknown[0]!r}; its options: {known}")
+        return merged
 
     @classmethod
     def gradient_settings(cls, task, options: dict | None = None) -> dict:

@@ -31,6 +31,21 @@ def make_env(
     return TaskEnv(task, make_sim(backend, task, num_envs, device, seed, horizon, **(options or {})))
 
 
+def device_problem(device: str) -> str | None:
+    """Why this machine cannot run on ``device`` (a phrase), or None: cpu, or cuda[:N] where CUDA exists."""
+    import torch
+
+    try:
+        parsed = torch.device(device)
+    except (RuntimeError, ValueError):
+        return f"unknown device {device!r}; use cpu or cuda[:N]"
+    if parsed.type not in ("cpu", "cuda"):
+        return f"device {device!r} is not supported; use cpu or cuda[:N]"
+    if parsed.type == "cuda" and not torch.cuda.is_available():
+        return f"device {device!r}: this machine has no CUDA device; use cpu"
+    return None
+
+
 def physics_fields(recorded: dict) -> dict:
     """A run's recorded physics constants, as PhysicsSpec fields (lists back to tuples; old names mapped)."""
     renamed = {"pd_ke": "pd_kp"}

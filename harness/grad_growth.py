@@ -19,8 +19,8 @@ from pathlib import Path
 import torch
 
 from algorithms.actor_critic import FirstOrderActorCritic
-from algorithms.config import AlgoConfig
-from harness.train import CHECKPOINT, load_checkpoint
+from harness.run_folder import CHECKPOINT, open_run
+from harness.train import load_checkpoint
 
 
 def parse_variant(text: str) -> dict:
@@ -46,8 +46,8 @@ def grad_growth(run: str | Path, variants: list[str], windows: int = 3, seed: in
     from tasks.rollout import rollout_reward
 
     run = Path(run)
-    config = json.loads((run / "config.json").read_text())
-    algo_cfg = AlgoConfig.from_dict(config["algo"])
+    config = open_run(run, (CHECKPOINT,))
+    algo_cfg = config["algo_config"]
     n, h = algo_cfg.num_envs, algo_cfg.horizon
     task = run_task(config)
     physics = task.physics

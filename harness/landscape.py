@@ -39,7 +39,8 @@ from algorithms.actor_critic import FirstOrderActorCritic
 from algorithms.returns import actor_loss_from_returns, h_step_returns, segment_starts, td_lambda_returns
 from harness.envs import make_env, run_task
 from harness.results import RunError, provenance, write_json
-from harness.train import CHECKPOINT, load_checkpoint, read_config
+from harness.run_folder import CHECKPOINT, open_run
+from harness.train import load_checkpoint
 
 LANDSCAPE = "landscape.json"
 DIRECTIONS = "filter-normalised Gaussian (Li et al. 2018), rows of weight matrices, biases 0"
@@ -201,10 +202,8 @@ def compute_landscape(
         raise RunError(f"landscape num_envs must be an integer >= 1, got {num_envs!r}")
     if isinstance(warmup_steps, bool) or not isinstance(warmup_steps, int) or warmup_steps < 0:
         raise RunError(f"landscape warmup_steps must be an integer >= 0, got {warmup_steps!r}")
-    config = read_config(run_dir)
+    config = open_run(run_dir, (checkpoint,))
     cfg = config["algo_config"]
-    if not (run_dir / checkpoint).is_file():
-        raise RunError(f"{run_dir} has no {checkpoint}: train (or --resume) it first")
     n = num_envs or cfg.num_envs
     start_time = time.perf_counter()
 

@@ -30,11 +30,10 @@ def rollout(run_dir: Path, backend: str, steps: int) -> tuple[object, list[np.nd
     from algorithms.actor_critic import FirstOrderActorCritic
     from backends.render import state_picture_input
     from harness.envs import make_env, run_task
-    from harness.train import CHECKPOINT, load_checkpoint, read_config
+    from harness.run_folder import CHECKPOINT, open_run
+    from harness.train import load_checkpoint
 
-    config = read_config(run_dir)
-    if not (run_dir / CHECKPOINT).is_file():
-        raise RunError(f"{run_dir} has no {CHECKPOINT}: render needs the run's final policy (train or --resume it)")
+    config = open_run(run_dir, (CHECKPOINT,), backend)
     cfg = config["algo_config"]
     torch.manual_seed(EVAL_SEED)
     options = config.get("backend_options") if backend == config["backend"] else None

@@ -242,7 +242,8 @@ def _evaluated(run_dir: Path, ev: dict) -> bool:
 
 def _train_and_evaluate(run_dir: Path, job: dict, stream) -> None:
     from algorithms.config import AlgoConfig
-    from harness.train import evaluate, read_config, resume, train
+    from harness.run_folder import read_config
+    from harness.train import evaluate, resume, train
 
     ev = job["eval"]
     if _training_complete(run_dir, job["epochs"]) and (not ev["seeds"] or _evaluated(run_dir, ev)):

@@ -25,6 +25,10 @@ from harness.results import RunError
 INT_MAX = 2**31 - 1  # seeds: torch.manual_seed and numpy generators take them; engines hash them as int32
 MAX_ENVS = 65_536
 MAX_GRID = 400
+MAX_EPOCHS = 10**6
+MAX_HORIZON = 10_000
+MAX_EVAL_SEEDS = 1000
+MAX_STEPS = 10**6
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,99}$")
 
 Check = Callable[[object, str], None]
@@ -175,11 +179,11 @@ def _flat_options(value, path: str) -> None:
 
 backend, task, algo = text(_backends), text(_tasks), text(_algos)
 seed = integer(0)
-EVAL = {"seeds": integer(0, 1000), "num_envs": integer(1, MAX_ENVS), "max_steps": integer(1, 10**6)}
+EVAL = {"seeds": integer(0, MAX_EVAL_SEEDS), "num_envs": integer(1, MAX_ENVS), "max_steps": integer(1, MAX_STEPS)}
 RUN_SETTINGS = {
-    "epochs": integer(1, 10**6),
+    "epochs": integer(1, MAX_EPOCHS),
     "num_envs": integer(1, MAX_ENVS),
-    "horizons": one_or_many(integer(1, 10_000)),
+    "horizons": one_or_many(integer(1, MAX_HORIZON)),
     "seeds": one_or_many(seed),
     "hyperparameters": free_table,
     "preset": text(),
@@ -188,9 +192,9 @@ SELECTION = {
     "task": task,
     "algos": one_or_many(algo),
     "seeds": one_or_many(seed),
-    "horizon": integer(1, 10_000),
+    "horizon": integer(1, MAX_HORIZON),
     "preset": text(),
-    "epochs": integer(1, 10**6),
+    "epochs": integer(1, MAX_EPOCHS),
     "train_num_envs": integer(1, MAX_ENVS),
     "backend_options": _flat_options,
 }
@@ -227,7 +231,7 @@ CHECK = table(
 )
 SIM_TO_SIM = table(
     {**SELECTION, "train_backend": backend, "eval_backend": backend}
-    | {"eval_seeds": integer(1, 1000), "num_envs": integer(1, MAX_ENVS), "max_steps": integer(1, 10**6)},
+    | {"eval_seeds": integer(1, MAX_EVAL_SEEDS), "num_envs": integer(1, MAX_ENVS), "max_steps": integer(1, MAX_STEPS)},
     required=("task", "train_backend", "eval_backend"),
 )
 LANDSCAPE = table(

@@ -52,13 +52,20 @@ from harness.results import (
     writable_parent,
     write_json,
 )
+from harness.run_folder import (
+    CHECKPOINT,
+    CONFIG,
+    INIT_CHECKPOINT,
+    check_here,
+    open_run,
+    read_checkpoint,
+    read_config,
+    run_identity,
+)
 from harness.tensorboard import FOLDER as TENSORBOARD_FOLDER
 from harness.tensorboard import EpochScalars
 
-CONFIG = "config.json"
 METRICS = "metrics.jsonl"
-CHECKPOINT = "checkpoint.pt"
-INIT_CHECKPOINT = "checkpoint_init.pt"
 # metrics that measure time, not the run: everything else is equal between a resumed and an uninterrupted run
 WALL_TIME_FIELDS = (
     "wall_s",
@@ -81,8 +88,9 @@ def _set_rng_state(state: dict) -> None:
     random.setstate(state["python"])
 
 
-def save_checkpoint(path: Path, algo: FirstOrderActorCritic, env, progress: dict) -> None:
-    """Write a checkpoint atomically: temporary file, fsync, rename (a kill leaves the old one intact)."""
+def save_checkpoint(path: Path, algo: FirstOrderActorCritic, env, progress: dict, run: dict | None = None) -> None:
+    """Write a checkpoint atomically: temporary file, fsync, rename (a kill leaves the old one intact).
+    ``run``: what it records of the run it belongs to (:func:`harness.run_folder.run_identity`)."""
     if not algo.parameters_finite():
         raise RunError(f"refusing to write {path.name}: the algorithm holds non-finite weights")
     payload = {
@@ -94,6 +102,7 @@ def save_checkpoint(path: Path, algo: FirstOrderActorCritic, env, progress: dict
         "env": env.state_dict() if env is not None else None,
         "rng": _rng_state(),
         "progress": progress,
+        "run": run,
     }
     # a name of this writer's own: a worker presumed dead (harness/claims.py) never shares a half-written file
     tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
@@ -105,22 +114,9 @@ def save_checkpoint(path: Path, algo: FirstOrderActorCritic, env, progress: dict
     os.replace(tmp, path)
 
 
-def _read_checkpoint(path: Path) -> dict:
-    try:
-        payload = torch.load(path, map_location="cpu", weights_only=False)
-        if not isinstance(payload, dict) or not {"algo", "optimizers", "epoch", "rng", "progress"} <= set(payload):
-            raise ValueError("not a diffsim-bench checkpoint")
-        return payload
-    except Exception as exc:  # torch raises assorted types for torn or foreign files
-        detail = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise RunError(
-            f"{path} is unreadable ({detail[:120]}); it was not written by a finished checkpoint: "
-            "start the run again in a new --out"
-        ) from None
-
-
 def load_checkpoint(path: Path, algo: FirstOrderActorCritic, env=None) -> dict:
-    return _apply_checkpoint(_read_checkpoint(path), algo, env)
+    """Load a checkpoint into ``algo`` (and ``env``); check it against its run first (:func:`open_run`)."""
+    return _apply_checkpoint(read_checkpoint(path), algo, env)
 
 
 def _apply_checkpoint(payload: dict, algo: FirstOrderActorCritic, env=None) -> dict:
@@ -133,21 +129,6 @@ def _apply_checkpoint(payload: dict, algo: FirstOrderActorCritic, env=None) -> d
     if env is not None:
         _set_rng_state(payload["rng"])
     return payload["progress"]
-
-
-def read_config(run_dir: Path) -> dict:
-    """A run's config.json, or a one-line RunError saying why it cannot be used."""
-    path = Path(run_dir) / CONFIG
-    if not path.is_file():
-        raise RunError(f"{run_dir} is not a run directory (no {CONFIG}); start a run there with train --out {run_dir}")
-    try:
-        config = json.loads(path.read_text())
-        for key in ("task", "backend", "seed", "device", "epochs", "algo"):
-            config[key]  # noqa: B018  (presence check)
-        config["algo_config"] = AlgoConfig.from_dict(config["algo"])
-    except (ValueError, KeyError, TypeError) as exc:
-        raise RunError(f"{path} is unreadable or incomplete ({exc}); start the run again in a new --out") from None
-    return config
 
 
 class _Progress:
@@ -288,10 +269,12 @@ def resume(
     """Continue the run in ``run_dir`` from its last checkpoint, up to ``epochs`` in total (default: as planned)."""
     run_dir = Path(run_dir)
     config = read_config(run_dir)
-    algo_config = config.pop("algo_config")
+    check_here(config)
     if epochs is not None and epochs < config["epochs"]:
         raise RunError(f"--epochs {epochs} is fewer than the run's planned {config['epochs']}; give a larger total")
-    source = _resume_source(run_dir)  # refuse an unreadable checkpoint or metrics file before anything is written
+    # a torn, foreign or unreadable checkpoint or metrics file is refused before anything is written
+    source = _resume_source(run_dir, config)
+    algo_config = config.pop("algo_config")
     read_metrics(run_dir / METRICS)
     _remove_stale_checkpoint_temps(run_dir, stream)
     config["epochs"] = epochs or config["epochs"]
@@ -309,13 +292,13 @@ def _remove_stale_checkpoint_temps(run_dir: Path, stream) -> None:
             print(f"removed {tmp.name}: a checkpoint write that was interrupted", file=stream, flush=True)
 
 
-def _resume_source(run_dir: Path) -> tuple[Path, dict] | None:
+def _resume_source(run_dir: Path, config: dict) -> tuple[Path, dict] | None:
     """The checkpoint a resume starts from and its contents: checkpoint.pt, else checkpoint_init.pt,
     else None (from scratch)."""
     for name in (CHECKPOINT, INIT_CHECKPOINT):
         path = run_dir / name
         if path.exists():
-            return path, _read_checkpoint(path)
+            return path, read_checkpoint(path, config)
     return None
 
 
@@ -363,11 +346,12 @@ def _run(
     except (ValueError, TypeError, BackendError) as exc:
         raise RunError(f"cannot build {backend}/{task} with options {options}: {exc}") from None
     write_json(config_path, config)  # from here on the folder is resumable
+    identity = run_identity({**config, "algo_config": algo_config})
     algo = FirstOrderActorCritic(algo_config, env.obs_dim, env.action_dim)
     progress = {"env_steps": 0, "wall_s": 0.0, "recent_returns": [], "nonfinite_events": 0}
     if source is None:
         env.reset()
-        save_checkpoint(run_dir / INIT_CHECKPOINT, algo, env, progress)
+        save_checkpoint(run_dir / INIT_CHECKPOINT, algo, env, progress, identity)
         _truncate_metrics(metrics_path, 0)
     else:
         path, payload = source
@@ -424,7 +408,7 @@ def _run(
                 scalars.write(row)
                 bar.update(algo.epoch - 1, row)
                 if algo.epoch % checkpoint_every == 0 or algo.epoch == epochs or stop.signum is not None:
-                    save_checkpoint(ckpt_path, algo, env, progress)
+                    save_checkpoint(ckpt_path, algo, env, progress, identity)
         except KeyboardInterrupt:  # a second signal mid-epoch: no checkpoint of a half-done epoch
             print(f"\nstopped now: {run_dir} resumes from its last checkpoint with --resume", file=stream)
             raise
@@ -455,14 +439,10 @@ def evaluate(
     ``eval_on_<backend>.json`` instead of ``eval.json``, unless ``out`` names the file.
     """
     run_dir = Path(run_dir)
-    config = read_config(run_dir)
+    config = open_run(run_dir, (INIT_CHECKPOINT, checkpoint), backend)
     cfg = config["algo_config"]
     trained_on = config["backend"]
     backend = backend or trained_on
-    for name in (INIT_CHECKPOINT, checkpoint):
-        if not (run_dir / name).exists():
-            raise RunError(f"{run_dir} has no {name} yet: train (or --resume) it first")
-        _read_checkpoint(run_dir / name)
     n = num_envs or 2 * cfg.num_envs
     results = {}
     line, total, t0 = ProgressLine(stream), 2 * seeds, time.perf_counter()

@@ -61,10 +61,15 @@ CLI_CASES = [
         "unknown task",
     ),
     ("unknown algo", ["train", *ANT, "--algo", "ppo", "--epochs", "1", "--out", "o"], None, "unknown algorithm"),
-    ("zero envs", [*TRAIN, "--num-envs", "0", "--out", "o"], None, "positive integer"),
-    ("text envs", [*TRAIN, "--num-envs", "many", "--out", "o"], None, "positive integer"),
-    ("negative horizon", [*TRAIN, "--horizon", "-1", "--out", "o"], None, "positive integer"),
-    ("zero epochs", ["train", *ANT, "--algo", "shac", "--epochs", "0", "--out", "o"], None, "positive integer"),
+    ("zero envs", [*TRAIN, "--num-envs", "0", "--out", "o"], None, "an integer in [1, 65536]"),
+    ("text envs", [*TRAIN, "--num-envs", "many", "--out", "o"], None, "expected an integer"),
+    ("negative horizon", [*TRAIN, "--horizon", "-1", "--out", "o"], None, "an integer in [1, 10000]"),
+    (
+        "zero epochs",
+        ["train", *ANT, "--algo", "shac", "--epochs", "0", "--out", "o"],
+        None,
+        "an integer in [1, 1000000]",
+    ),
     ("gamma above 1", [*TRAIN, "--gamma", "1.5", "--out", "o"], None, "gamma must be in (0, 1]"),
     ("gamma nan", [*TRAIN, "--gamma", "nan", "--out", "o"], None, "finite number"),
     ("lambda above 1", [*TRAIN, "--lam", "1.5", "--out", "o"], None, "lam must be in [0, 1]"),
@@ -107,6 +112,22 @@ CLI_CASES = [
     ("bogus device", [*TRAIN, "--device", "bogus", "--out", "o"], None, "unknown device"),
     ("cuda on a cpu machine", [*TRAIN, "--device", "cuda:0", "--out", "o"], "no_cuda", "no CUDA device"),
     ("text seed", [*TRAIN, "--seed", "abc", "--out", "o"], None, "expected an integer"),
+    # sizes the types or the machine cannot hold, refused at the flag with the limit
+    ("seed of 2**64", [*TRAIN, "--seed", str(2**64), "--out", "o"], None, "an integer in [0, 2147483647]"),
+    ("negative seed", [*TRAIN, "--seed", "-1", "--out", "o"], None, "an integer in [0, 2147483647]"),
+    ("ten million envs", [*TRAIN, "--num-envs", "10000000", "--out", "o"], None, "an integer in [1, 65536]"),
+    ("a horizon of 1e5", [*TRAIN, "--horizon", "100000", "--out", "o"], None, "an integer in [1, 10000]"),
+    ("epochs past 1e6", [*TRAIN, "--epochs", "2000000", "--out", "o"], None, "an integer in [1, 1000000]"),
+    ("a landscape grid of 1", ["landscape", "--run", "RUN", "--grid", "1"], None, "an integer in [2, 400]"),
+    ("a landscape grid of 1e5", ["landscape", "--run", "RUN", "--grid", "100000"], None, "an integer in [2, 400]"),
+    ("eval 5000 seeds", ["eval", "--run", "RUN", "--eval-seeds", "5000"], None, "an integer in [1, 1000]"),
+    ("eval a million envs", ["eval", "--run", "RUN", "--num-envs", "1000000"], None, "an integer in [1, 65536]"),
+    (
+        "sweep a seed past int32",
+        ["sweep", *ANT, "--algos", "shac", "--epochs", "1", "--out", "o", "--seeds", "0", str(2**31)],
+        None,
+        "an integer in [0, 2147483647]",
+    ),
     ("resume nothing", ["train", "--resume", "nowhere"], None, "not a run directory"),
     (
         "resume with other settings",
@@ -121,14 +142,19 @@ CLI_CASES = [
         "fewer than the run's planned 2",
     ),
     ("resume a truncated config", ["train", "--resume", "RUN"], "truncate_config", "config.json is unreadable"),
-    ("resume a config without keys", ["train", "--resume", "RUN"], "empty_config_object", "config.json is unreadable"),
+    (
+        "resume a config without keys",
+        ["train", "--resume", "RUN"],
+        "empty_config_object",
+        "config.json: it has no 'task'",
+    ),
     ("resume a garbage checkpoint", ["train", "--resume", "RUN"], "garbage_checkpoint", "checkpoint.pt is unreadable"),
     ("resume an empty checkpoint", ["train", "--resume", "RUN"], "empty_checkpoint", "checkpoint.pt is unreadable"),
     ("resume a corrupt metrics middle", ["train", "--resume", "RUN"], "corrupt_metrics_middle", "corrupt line 1"),
     ("eval nothing", ["eval", "--run", "nowhere"], None, "not a run directory"),
     ("eval without checkpoint", ["eval", "--run", "RUN"], "missing_checkpoint", "has no checkpoint.pt yet"),
     ("eval a truncated config", ["eval", "--run", "RUN"], "truncate_config", "config.json is unreadable"),
-    ("eval zero seeds", ["eval", "--run", "RUN", "--eval-seeds", "0"], None, "positive integer"),
+    ("eval zero seeds", ["eval", "--run", "RUN", "--eval-seeds", "0"], None, "an integer in [1, 1000]"),
     ("report nothing", ["report", "--runs", "nowhere", "--out", "r"], None, "not a run directory"),
     ("report into a directory", ["report", "--runs", "RUN", "--out", "RUN"], None, "is a directory"),
     ("gradcheck nan tolerance", ["gradcheck", *ANT, "--tolerance", "nan"], None, "positive finite"),
@@ -195,7 +221,12 @@ CLI_CASES = [
     ),
     ("solver-probe unknown task", ["solver-probe", "--task", "dog"], None, "unknown task"),
     ("solver-probe task without candidates", ["solver-probe", "--task", "pointmass"], None, "candidates for the tasks"),
-    ("solver-probe zero steps", ["solver-probe", "--task", "go2", "--max-steps", "0"], None, "positive integer"),
+    (
+        "solver-probe zero steps",
+        ["solver-probe", "--task", "go2", "--max-steps", "0"],
+        None,
+        "an integer in [1, 1000000]",
+    ),
     (
         "grad-growth substeps variant as text",
         ["grad-growth", "--run", "RUN", "--variant", "substeps=x"],
@@ -205,8 +236,69 @@ CLI_CASES = [
 ]
 
 
-def _damage(run: Path, how: str | None, monkeypatch) -> None:
-    if how == "truncate_config":
+# run folders whose config.json and checkpoints disagree with each other or with this machine: every verb
+# that loads a policy refuses them the same way (harness/run_folder.py), before it writes anything
+RUN_VERBS = {
+    "eval": ["eval", "--run", "RUN", "--eval-seeds", "1"],
+    "resume": ["train", "--resume", "RUN", "--epochs", "2"],
+    "landscape": ["landscape", "--run", "RUN", "--grid", "2"],
+    "render": ["render", "--run", "RUN", "--max-steps", "2"],
+    "grad-growth": ["grad-growth", "--run", "RUN", "--variant", "contact_ke=1e4"],
+}
+FOLDER_DAMAGES = [  # (what, config.json fields changed (dotted: nested), what the refusal says)
+    ("fractional seed", {"seed": 1.5}, "seed is 1.5, not an integer"),
+    ("text seed", {"seed": "abc"}, "seed is 'abc'"),
+    ("seed past int32", {"seed": 2**40}, "not an integer in [0, 2147483647]"),
+    ("another seed than the checkpoint's", {"seed": 5}, "written for seed 0, config.json says 5"),
+    ("zero epochs", {"epochs": 0}, "epochs is 0"),
+    ("a device this machine lacks", {"device": "cuda"}, "no CUDA device"),
+    ("an unknown device", {"device": "tpu"}, "device 'tpu'"),
+    ("an engine not installed", {"backend": "bullet"}, "unknown backend 'bullet'"),
+    ("another task without the preset", {"task": "go2"}, "has no physics preset 'bench'"),
+    ("another task", {"task": "go2", "physics_record.preset": "project"}, "written for task 'ant'"),
+    ("more envs than the checkpoint's", {"algo.num_envs": 8}, "written for num_envs 4"),
+    ("another horizon", {"algo.horizon": 8}, "written for horizon 4"),
+    ("another algorithm", {"algo.algo": "sapo"}, "written for algo 'shac'"),
+    ("other network sizes", {"algo.actor_hidden": [64, 64]}, "networks are not the ones"),
+    ("an unknown engine option", {"backend_options": {"bogus": 1}}, "has no option 'bogus'"),
+    ("an invalid hyperparameter", {"algo.gamma": 2.0}, "hyperparameters are invalid"),
+    ("no task", {"task": None}, "task is None"),
+    ("anonymous checkpoints, another task", {"task": "go2", "physics_record.preset": "project", "_anon": 1}, "(12,)"),
+    ("anonymous checkpoints, more envs", {"algo.num_envs": 8, "_anon": 1}, "env state has 4 envs"),
+]
+CLI_CASES += [
+    (f"{verb}: {what}", args, fields, needle)
+    for what, fields, needle in FOLDER_DAMAGES
+    for verb, args in RUN_VERBS.items()
+]
+
+
+def _edit_config(run: Path, fields: dict) -> None:
+    """Set config.json's (dotted) ``fields``; ``_anon`` strips the run each checkpoint records, as in
+    checkpoints written before they recorded it."""
+    import json
+
+    config = json.loads((run / "config.json").read_text())
+    for dotted, value in fields.items():
+        if dotted == "_anon":
+            for name in ("checkpoint.pt", "checkpoint_init.pt"):
+                payload = torch.load(run / name, weights_only=False)
+                payload.pop("run")
+                torch.save(payload, run / name)
+            continue
+        *parents, key = dotted.split(".")
+        node = config
+        for parent in parents:
+            node = node[parent]
+        node[key] = value
+    (run / "config.json").write_text(json.dumps(config))
+
+
+def _damage(run: Path, how: str | dict | None, monkeypatch) -> None:
+    if isinstance(how, dict):
+        _edit_config(run, how)
+        monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    elif how == "truncate_config":
         _truncate(run / "config.json")
     elif how == "empty_config_object":
         (run / "config.json").write_text("{}")
@@ -243,6 +335,18 @@ def test_bad_cli_input(case, args, damage, needle, template, tmp_path, monkeypat
     assert err.startswith("error: ") and err.count("\n") == 1 and "Traceback" not in err, err
     assert needle in err, (needle, err)
     assert _snapshot(tmp_path) == before, "a refused command wrote or changed a file"
+
+
+def test_checkpoints_record_their_run_and_a_matching_folder_opens(template):
+    from harness.run_folder import open_run
+
+    rng = torch.get_rng_state()
+    config = open_run(template, ("checkpoint.pt", "checkpoint_init.pt"))
+    assert torch.equal(torch.get_rng_state(), rng)  # checking draws no random numbers of the caller's
+    for name in ("checkpoint.pt", "checkpoint_init.pt"):
+        recorded = torch.load(template / name, weights_only=False)["run"]
+        assert recorded == {"task": "ant", "backend": "newton", "seed": 0, "algo": "shac", "num_envs": 4, "horizon": 4}
+    assert config["algo_config"].num_envs == 4
 
 
 def test_the_corpus_is_at_least_forty_cases():

@@ -97,7 +97,8 @@ def _unperturbed_losses(run, noise_seed: int, grad: bool) -> tuple[float, float]
     """The trained policy's (h-step, TD-lambda) actor loss on the landscape's window, computed the
     algorithm's own way: its rollout and its ``actor_loss`` (TD-lambda for TDAdpt)."""
     from harness.envs import make_env
-    from harness.train import load_checkpoint, read_config
+    from harness.run_folder import read_config
+    from harness.train import load_checkpoint
 
     cfg = read_config(run)["algo_config"]
     env = make_env("ant", "newton", 2, "cpu", 0, cfg.horizon)

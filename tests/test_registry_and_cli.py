@@ -63,7 +63,7 @@ def test_cli_list():
     [
         (["gradcheck", "--backend", "bullet", "--task", "ant"], "unknown backend 'bullet'; choose from: "),
         (["throughput", "--backend", "newton", "--task", "dog"], "unknown task 'dog'; choose from: ant"),
-        (["throughput", "--backend", "newton", "--task", "ant", "--num-envs", "-3"], "positive integer"),
+        (["throughput", "--backend", "newton", "--task", "ant", "--num-envs", "-3"], "an integer in [1, 65536]"),
         (["gradcheck", "--backend", "newton", "--task", "ant", "--tolerance", "nan"], "positive finite"),
         (["fly"], "invalid choice"),
     ],

@@ -68,7 +68,7 @@ def cmd_grad_growth(args) -> int:
 
     from harness.grad_growth import grad_growth, parse_variant
     from harness.results import write_check
-    from harness.train import read_config
+    from harness.run_folder import read_config
 
     read_config(Path(args.run))
     if not (Path(args.run) / "checkpoint.pt").exists():

@@ -28,16 +28,11 @@ def _validate_names(backend: str | None = None, task: str | None = None) -> None
 
 
 def _check_device(device: str) -> None:
-    import torch
+    from harness.envs import device_problem
 
-    try:
-        parsed = torch.device(device)
-    except (RuntimeError, ValueError):
-        raise BadInput(f"unknown device {device!r}; use cpu or cuda[:N]") from None
-    if parsed.type not in ("cpu", "cuda"):
-        raise BadInput(f"device {device!r} is not supported; use cpu or cuda[:N]")
-    if parsed.type == "cuda" and not torch.cuda.is_available():
-        raise BadInput(f"device {device!r}: this machine has no CUDA device; use cpu")
+    problem = device_problem(device)
+    if problem:
+        raise BadInput(problem)
 
 
 def _make_sim(args, horizon: int):

@@ -12,6 +12,7 @@ import typing
 
 from algorithms.config import ALGORITHMS
 from harness.cli.inputs import BadInput
+from harness.spec_schema import INT_MAX, MAX_ENVS, MAX_EPOCHS, MAX_EVAL_SEEDS, MAX_GRID, MAX_HORIZON, MAX_STEPS
 
 
 class _Parser(argparse.ArgumentParser):
@@ -39,6 +40,20 @@ def _int(text: str) -> int:
         return int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+
+
+def _int_in(low: int, high: int):
+    """An integer flag in [low, high]: the limits a suite spec has (:mod:`harness.spec_schema`), so that
+    a value the types or the machine cannot hold is refused before any work."""
+
+    def parse(text: str) -> int:
+        value = _int(text)
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"expected an integer in [{low}, {high}], got {value}")
+        return value
+
+    parse.__name__ = "integer"  # argparse names the type in its messages
+    return parse
 
 
 def _nonnegative_int(text: str) -> int:
@@ -100,19 +115,23 @@ FLAGS: dict[str, dict] = {
     "task": {"help": "task name (see `list`)"},
     "algo": {"help": "one of: " + ", ".join(ALGORITHMS)},
     "algos": {"nargs": "+", "help": "algorithm presets to train, e.g. shac shac-tdadpt"},
-    "num_envs": {"type": _positive_int, "help": "parallel environments N"},
-    "horizon": {"type": _positive_int, "help": "control steps per window h (the graph is cut after each)"},
+    "num_envs": {"type": _int_in(1, MAX_ENVS), "help": "parallel environments N"},
+    "horizon": {"type": _int_in(1, MAX_HORIZON), "help": "control steps per window h (the graph is cut after each)"},
     "device": {"default": "cpu", "help": "torch/warp device, e.g. cpu or cuda:0"},
-    "seed": {"type": _int, "default": 0, "help": "random seed of the run (initial states, noise, weights)"},
-    "seeds": {"type": _int, "nargs": "+", "default": [0], "help": "training seeds"},
+    "seed": {
+        "type": _int_in(0, INT_MAX),
+        "default": 0,
+        "help": "random seed of the run (initial states, noise, weights)",
+    },
+    "seeds": {"type": _int_in(0, INT_MAX), "nargs": "+", "default": [0], "help": "training seeds"},
     "steps": {"type": _positive_int, "default": 8, "help": "control steps in the differentiated rollout"},
-    "epochs": {"type": _positive_int, "help": "training epochs"},
+    "epochs": {"type": _int_in(1, MAX_EPOCHS), "help": "training epochs"},
     "out": {"help": "the result file to write (JSON)"},
     "run": {"help": "run directory written by `train`"},
     "runs": {"nargs": "+", "help": "run directories written by `train`"},
     "windows": {"type": _positive_int, "help": "timed windows of h steps of each kind (the best is kept)"},
-    "eval_seeds": {"type": _positive_int, "default": 10, "help": "evaluation seeds (10000, 10001, ...)"},
-    "max_steps": {"type": _positive_int, "help": "cap on steps per evaluation episode (default: the task's)"},
+    "eval_seeds": {"type": _int_in(1, MAX_EVAL_SEEDS), "default": 10, "help": "evaluation seeds (10000, 10001, ...)"},
+    "max_steps": {"type": _int_in(1, MAX_STEPS), "help": "cap on steps per evaluation episode (default: the task's)"},
     "checkpoint_every": {"type": _positive_int, "default": 1, "help": "epochs between checkpoints"},
     "tolerance": {"type": _positive_float, "help": "max relative gradient error allowed (default 2e-2)"},
     "jobs": {
@@ -489,7 +508,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("landscape", help="h-step and TD-lambda actor losses over a plane of policy parameters")
     _add(p, "landscape", "run", "num_envs", "seed", required=("run",))
-    p.add_argument("--grid", type=_positive_int, default=40, help="points per axis (default: %(default)s)")
+    p.add_argument("--grid", type=_int_in(2, MAX_GRID), default=40, help="points per axis (default: %(default)s)")
     p.add_argument("--span", type=_positive_float, default=1.0, help="each axis spans [-span, span] (default: 1)")
     p.add_argument("--warmup-steps", type=_nonnegative_int, default=0, help="policy steps before the window")
 

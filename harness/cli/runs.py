@@ -69,7 +69,8 @@ def cmd_train(args) -> int:
 def cmd_eval(args) -> int:
     from pathlib import Path
 
-    from harness.train import evaluate, read_config
+    from harness.run_folder import read_config
+    from harness.train import evaluate
 
     config = read_config(Path(args.run))
     if args.backend:
@@ -96,7 +97,7 @@ def cmd_report(args) -> int:
     from pathlib import Path
 
     from harness.report import write_report
-    from harness.train import read_config
+    from harness.run_folder import read_config
 
     runs = [Path(r) for r in args.runs]
     for run in runs:
@@ -180,7 +181,7 @@ def cmd_render(args) -> int:
 
     os.environ.setdefault("MUJOCO_GL", "egl")  # before anything imports MuJoCo: headless rendering
     from harness.render import compared_backends, render
-    from harness.train import read_config
+    from harness.run_folder import CHECKPOINT, open_run, read_config
 
     trained_on = read_config(Path(args.run))["backend"]
     if args.compare and args.backend:
@@ -188,6 +189,8 @@ def cmd_render(args) -> int:
     if args.backend:
         _validate_names(args.backend, None)
     shown = compared_backends(trained_on) if args.compare else [args.backend or trained_on]
+    for backend in shown:  # every check before the first frame
+        open_run(args.run, (CHECKPOINT,), backend)
     render(args.run, shown, args.max_steps or 300, args.frames)
     return 0
 
@@ -196,7 +199,7 @@ def cmd_landscape(args) -> int:
     from pathlib import Path
 
     from harness.landscape import compute_landscape, plot_landscape, write_landscape
-    from harness.train import read_config
+    from harness.run_folder import read_config
 
     read_config(Path(args.run))
     result = compute_landscape(
