@@ -4,8 +4,9 @@ The policy acts deterministically in one env (evaluation seed 10,000, as ``eval`
 own backend, another one (``--backend``, sim-to-sim), or both side by side (``--compare``), for at
 most ``steps`` control steps or until its episode ends. ``frames`` states evenly spaced over that
 window are drawn (:mod:`backends.render`: MuJoCo's offscreen renderer for rigid tasks, the tet mesh's
-surface for the SoftJumper) and written as a video (MP4 when ``ffmpeg`` is on the PATH, else an
-animated GIF) and a PNG filmstrip of six of them, each labelled with its step and the return so far.
+surface for the SoftJumper) and written as a video (MP4 through ffmpeg: the PATH's, else the static
+build of the pinned imageio-ffmpeg; an animated GIF where neither runs) and a PNG filmstrip of six of
+them, each labelled with its step and the return so far.
 """
 
 from __future__ import annotations
@@ -78,9 +79,22 @@ def frames_of(run_dir: Path, backend: str, steps: int, frames: int) -> tuple[lis
     return pictures, picks
 
 
+def ffmpeg_executable() -> str | None:
+    """ffmpeg on the PATH, else the static build the pinned imageio-ffmpeg ships, else None."""
+    found = shutil.which("ffmpeg")
+    if found:
+        return found
+    try:
+        import imageio_ffmpeg
+
+        return imageio_ffmpeg.get_ffmpeg_exe()
+    except (ImportError, RuntimeError):  # not installed, or no build for this platform
+        return None
+
+
 def write_video(pictures: list[np.ndarray], stem: Path, fps: int = 10) -> Path:
-    """MP4 through ffmpeg when it is installed, else an animated GIF; written whole or not at all."""
-    ffmpeg = shutil.which("ffmpeg")
+    """MP4 through ffmpeg (:func:`ffmpeg_executable`), else an animated GIF; written whole or not at all."""
+    ffmpeg = ffmpeg_executable()
     if ffmpeg:
         out = stem.with_suffix(".mp4")
         height, width = pictures[0].shape[:2]

@@ -29,8 +29,40 @@ def run(one_epoch_ant_run, tmp_path) -> Path:
     return tmp_path / "run"
 
 
-def test_render_writes_a_video_and_a_filmstrip_that_move(run):
+def _video_frames(video: Path) -> list[np.ndarray]:
+    """The frames of a written video, decoded (MP4 by ffmpeg, GIF by Pillow), as int RGB arrays."""
+    if video.suffix == ".mp4":
+        import imageio_ffmpeg
+
+        reader = imageio_ffmpeg.read_frames(str(video))
+        width, height = next(reader)["size"]
+        return [np.frombuffer(f, np.uint8).reshape(height, width, 3).astype(int) for f in reader]
     from PIL import Image, ImageSequence
+
+    return [np.asarray(f.convert("RGB"), dtype=int) for f in ImageSequence.Iterator(Image.open(video))]
+
+
+@pytest.mark.parametrize("encoder", ["mp4", "gif"])
+def test_a_video_holds_every_picture_in_order(encoder, tmp_path, monkeypatch):
+    """Both encoders, on pictures whose brightness counts the frame: MP4 through ffmpeg (the pinned static
+    build when none is installed), an animated GIF where no ffmpeg runs; no temporary file left behind."""
+    import harness.render as render
+
+    if encoder == "gif":
+        monkeypatch.setattr(render, "ffmpeg_executable", lambda: None)
+    else:
+        assert render.ffmpeg_executable() is not None  # imageio-ffmpeg is a dependency
+    pictures = [np.full((48, 64, 3), 20 + 40 * k, np.uint8) for k in range(6)]
+    video = render.write_video(pictures, tmp_path / "clip")
+    assert video == tmp_path / f"clip.{encoder}" and sorted(tmp_path.iterdir()) == [video]
+    frames = _video_frames(video)
+    assert len(frames) == 6 and frames[0].shape == (48, 64, 3)
+    brightness = [float(f.mean()) for f in frames]
+    assert brightness == sorted(brightness) and abs(brightness[-1] - 220) < 8, brightness
+
+
+def test_render_writes_a_video_and_a_filmstrip_that_move(run):
+    from PIL import Image
 
     out = subprocess.run(
         [sys.executable, "-m", "harness", "render", "--run", str(run), "--max-steps", "30", "--frames", "5"],
@@ -41,12 +73,11 @@ def test_render_writes_a_video_and_a_filmstrip_that_move(run):
         timeout=600,
     )
     assert out.returncode == 0, out.stdout[-2000:] + out.stderr[-2000:]
-    video = next(run.glob("render_newton.*"))
-    assert f"wrote {video}" in out.stdout and video.suffix in (".gif", ".mp4")
-    if video.suffix == ".gif":
-        frames = [np.asarray(f.convert("RGB"), dtype=int) for f in ImageSequence.Iterator(Image.open(video))]
-        assert len(frames) == 5
-        assert np.abs(frames[0] - frames[-1]).sum(-1).astype(bool).mean() > 0.01  # the scene changed
+    (video,) = [p for p in run.glob("render_newton.*") if p.suffix in (".gif", ".mp4")]
+    assert f"wrote {video}" in out.stdout and video.suffix == ".mp4"  # the pinned ffmpeg build encodes
+    frames = _video_frames(video)
+    assert len(frames) == 5
+    assert np.abs(frames[0] - frames[-1]).sum(-1).astype(bool).mean() > 0.01  # the scene changed
     strip = Image.open(run / "render_newton_filmstrip.png")
     assert strip.size == (5 * 480, 360)
 
