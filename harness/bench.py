@@ -185,6 +185,16 @@ def _preset_suffix(args: list[str]) -> str:
     return f".{args[args.index('--preset') + 1]}" if "--preset" in args[:-1] else ""
 
 
+def _check_physics(args: list[str]) -> tuple[str | None, dict]:
+    """The preset and adapter options a check's arguments name (``--preset P``, ``--backend-option
+    K=V``): its gradients are made with them, so its address carries their gradient settings."""
+    from harness.cli.parser import _option
+
+    preset = args[args.index("--preset") + 1] if "--preset" in args[:-1] else None
+    options = dict(_option(args[k + 1]) for k, word in enumerate(args[:-1]) if word == "--backend-option")
+    return preset, options
+
+
 def gradient_identity(backend_names, task: str, preset: str | None = None, options: dict | None = None) -> dict:
     """``{"gradients": {backend: settings}}`` for the backends whose gradients depend on settings
     (:meth:`BatchedSim.gradient_settings`; finite differences), ``{}`` when none does (exact gradients):
@@ -485,7 +495,8 @@ def plan(data: dict, store: Path) -> list[Job]:
             args = [str(a) for a in block.get("args", []) + block.get("per_task", {}).get(task, {}).get("args", [])]
             for label_backend, words in _check_targets(kind, blist, task):
                 differentiates = kind in GRADIENT_CHECK_KINDS
-                gradients = gradient_identity(label_backend.split("-"), task) if differentiates else {}
+                preset, options = _check_physics(args)
+                gradients = gradient_identity(label_backend.split("-"), task, preset, options) if differentiates else {}
                 key = _hash([kind, *words, *args, device, physics_identity(task)] + ([gradients] if gradients else []))
                 out = store / "checks" / f"{kind}_{task}_{label_backend}_{key}.json"
                 if kind not in MULTI_BACKEND_KINDS + ("fd-schemes", "solver-probe", "peer"):  # these run on the CPU

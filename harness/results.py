@@ -101,12 +101,41 @@ def provenance(command: str | None = None) -> dict:
     }
 
 
-def writable_parent(path: Path) -> Path | None:
-    """The nearest existing ancestor of ``path`` if it is a directory we may create entries in, else None."""
-    parent = Path(path).parent
-    while not parent.exists():
-        parent = parent.parent
-    return parent if parent.is_dir() and os.access(parent, os.W_OK | os.X_OK) else None
+SUFFIX_ROOM = len(".provenance.json")  # the longest suffix a verb adds to a name it is given
+
+
+def path_problem(path: str | os.PathLike) -> str | None:
+    """Why a file cannot be written at ``path``, as a phrase, or None. Checked before any work: a name
+    longer than the file system takes (with room for the suffixes a verb adds beside it), a path longer
+    than it takes, a nearest existing ancestor that is a file or not writable."""
+    path = Path(path).absolute()
+    nearest = Path(path.anchor)
+    for part in path.parts[1:-1]:  # down from the root to the last ancestor that exists
+        try:
+            if not (nearest / part).exists():
+                break
+        except OSError:  # a name too long to look up: said below
+            break
+        nearest = nearest / part
+        if not nearest.is_dir():
+            return f"{nearest} is a file, not a directory"
+    try:
+        name_max, path_max = os.pathconf(nearest, "PC_NAME_MAX"), os.pathconf(nearest, "PC_PATH_MAX")
+    except (OSError, ValueError):  # a file system that does not say: the common Linux limits
+        name_max, path_max = 255, 4096
+    for part in path.parts[1:]:
+        size = len(os.fsencode(part))
+        if size > name_max - SUFFIX_ROOM:
+            return (
+                f"the name {part[:24]}... is {size} bytes; the file system takes {name_max}, "
+                f"less {SUFFIX_ROOM} for the suffixes written beside it"
+            )
+    size = len(os.fsencode(str(path)))
+    if size > path_max - 2 * name_max:  # the files a run or a suite writes below the given path
+        return f"the path is {size} bytes; the file system takes {path_max}, less room for the files written below it"
+    if not os.access(nearest, os.W_OK | os.X_OK):
+        return f"{nearest} is not writable"
+    return None
 
 
 def slow_write_for_tests() -> None:

@@ -29,7 +29,7 @@ from harness.bench import (
 )
 from harness.claims import Claim
 from harness.progress import ProgressLine, duration
-from harness.results import RunError, RunStopped
+from harness.results import RunError, RunStopped, path_problem
 
 
 class SuiteStopped(RunStopped):
@@ -306,6 +306,9 @@ def run_suite(
     name = data["suite"]["name"]
     # absolute: a Ray worker on another node resolves the same path on the shared storage
     store = Path(store).resolve() / name
+    problem = path_problem(store / "runs" / "config.json")  # where the deepest files go
+    if problem:
+        raise RunError(f"the store {store}: {problem}")
     all_jobs = plan(data, store)
     workers = jobs or int(data["suite"].get("jobs", 1))
     if dry_run:

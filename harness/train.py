@@ -46,10 +46,10 @@ from harness.results import (
     RunError,
     RunStopped,
     atomic_write_text,
+    path_problem,
     provenance,
     read_metrics,
     slow_write_for_tests,
-    writable_parent,
     write_json,
 )
 from harness.run_folder import (
@@ -207,17 +207,13 @@ def check_output_dir(out: str | Path) -> Path:
     if str(out).strip() == "":
         raise RunError("--out is empty: name a directory for the run")
     path = Path(out)
+    problem = path_problem(path / CONFIG)
+    if problem:
+        raise RunError(f"--out {out}: {problem}")
     if path.exists() and not path.is_dir():
         raise RunError(f"--out {out} is an existing file, not a directory")
     if (path / CONFIG).exists():
         raise RunError(f"{out} already holds a run; continue it with --resume {out} or choose another --out")
-    nearest = path
-    while not nearest.exists():
-        nearest = nearest.parent
-    if not nearest.is_dir():
-        raise RunError(f"--out {out}: {nearest} is a file, not a directory")
-    if writable_parent(path / CONFIG) is None:
-        raise RunError(f"--out {out}: {nearest} is not writable")
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

@@ -105,7 +105,7 @@ CLI_CASES = [
     ("negative weight decay", [*TRAIN, "--weight-decay", "-0.1", "--out", "o"], None, "weight_decay must be >= 0"),
     ("bogus bool", [*TRAIN, "--obs-norm", "maybe", "--out", "o"], None, "true or false"),
     ("empty out", [*TRAIN, "--out", ""], None, "--out is empty"),
-    ("out is a file", [*TRAIN, "--out", "FILE"], None, "is an existing file"),
+    ("out is a file", [*TRAIN, "--out", "FILE"], None, "is a file, not a directory"),
     ("out below a file", [*TRAIN, "--out", "FILE/run"], None, "is a file, not a directory"),
     ("out in an unwritable place", [*TRAIN, "--out", "/proc/diffsim-run"], None, "--out /proc/diffsim-run"),
     ("out holds a run", [*TRAIN, "--out", "RUN"], None, "already holds a run"),
@@ -187,7 +187,12 @@ CLI_CASES = [
         None,
         "--out is empty",
     ),
-    ("sweep into a file", ["sweep", *ANT, "--algos", "shac", "--epochs", "1", "--out", "FILE"], None, "existing file"),
+    (
+        "sweep into a file",
+        ["sweep", *ANT, "--algos", "shac", "--epochs", "1", "--out", "FILE"],
+        None,
+        "is a file, not a directory",
+    ),
     (
         "sweep with a bad algo",
         ["sweep", *ANT, "--algos", "shac", "ppo", "--epochs", "1", "--out", "o"],
@@ -265,6 +270,21 @@ FOLDER_DAMAGES = [  # (what, config.json fields changed (dotted: nested), what t
     ("no task", {"task": None}, "task is None"),
     ("anonymous checkpoints, another task", {"task": "go2", "physics_record.preset": "project", "_anon": 1}, "(12,)"),
     ("anonymous checkpoints, more envs", {"algo.num_envs": 8, "_anon": 1}, "env state has 4 envs"),
+]
+LONG = "n" * 300  # longer than any common file system's name limit (255 bytes)
+DEEP = "/".join(["d" * 200] * 25)  # a path longer than PATH_MAX (4096)
+CLI_CASES += [  # paths refused before any work, whatever the verb
+    ("train under a name too long", [*TRAIN, "--out", LONG], None, "is 300 bytes; the file system takes"),
+    ("train under a path too long", [*TRAIN, "--out", DEEP], None, "the path is"),
+    ("train below a file", [*TRAIN, "--out", "FILE/run"], None, "is a file, not a directory"),
+    ("eval into a name too long", ["eval", "--run", "RUN", "--out", LONG + ".json"], None, "is 305 bytes"),
+    ("report into a name too long", ["report", "--runs", "RUN", "--out", LONG], None, "is 300 bytes"),
+    ("gradcheck into a name too long", ["gradcheck", *ANT, "--out", LONG + ".json"], None, "is 305 bytes"),
+    ("solver-probe into a name too long", ["solver-probe", "--task", "ant", "--out", LONG], None, "is 300 bytes"),
+    ("solver-probe below a file", ["solver-probe", "--task", "ant", "--out", "FILE/p.json"], None, "is a file"),
+    ("sweep under a name too long", ["sweep", *ANT, "--algos", "shac", "--epochs", "1", "--out", LONG], None, "bytes"),
+    ("bench into a store below a file", ["bench", "--profile", "smoke", "--store", "FILE"], None, "is a file"),
+    ("bench into a store too deep", ["bench", "--profile", "smoke", "--store", DEEP], None, "the path is"),
 ]
 CLI_CASES += [
     (f"{verb}: {what}", args, fields, needle)

@@ -107,9 +107,9 @@ def test_a_run_is_addressed_by_its_adapters_gradient_settings(monkeypatch):
     assert "gradients" not in newton.identity()
     mujoco = RunSpec(backend="mujoco_warp", **spec)
     settings = mujoco.identity()["gradients"]["mujoco_warp"]
-    assert settings["fd_scheme"] == "forward" and settings["fd_eps_state"] == adapter.FD_EPS_STATE["forward"]
+    assert settings["fd_scheme"] == "one_sided" and settings["fd_eps_state"] == adapter.FD_EPS_STATE["one_sided"]
     before = mujoco.key
-    monkeypatch.setitem(adapter.FD_EPS_STATE, "forward", adapter.FD_EPS_STATE["forward"] / 2)
+    monkeypatch.setitem(adapter.FD_EPS_STATE, "one_sided", adapter.FD_EPS_STATE["one_sided"] / 2)
     bench._gradient_settings.cache_clear()
     try:
         assert mujoco.key != before
@@ -117,6 +117,32 @@ def test_a_run_is_addressed_by_its_adapters_gradient_settings(monkeypatch):
         monkeypatch.undo()
         bench._gradient_settings.cache_clear()
     assert mujoco.key == before
+
+
+def test_a_check_is_addressed_by_the_gradient_settings_of_the_options_it_names(tmp_path, monkeypatch):
+    """A check run with --backend-option differentiates with that option's settings: its address holds
+    them (not the default's), so changing the forward step re-plans only the forward check."""
+    pytest.importorskip("mujoco_warp")
+    from backends.mujoco_warp import adapter
+    from harness import bench
+
+    check = "[[check]]\nkind='contact-jacobians'\nbackends=['mujoco_warp']\ntasks=['ant']\nargs=[{}]\n"
+    named = ("", "'--backend-option', 'fd_scheme=forward'", "'--backend-option', 'fd_scheme=one_sided'")
+    text = "[suite]\nname='c'\n" + "".join(check.format(words) for words in named)
+    data, _ = load_spec(spec_file=str(_write(tmp_path, text)))
+
+    def outputs():
+        bench._gradient_settings.cache_clear()
+        return [j.output.name for j in plan(data, tmp_path)]
+
+    default, forward, one_sided = outputs()
+    monkeypatch.setitem(adapter.FD_EPS_STATE, "forward", adapter.FD_EPS_STATE["forward"] / 2)
+    try:
+        changed = outputs()
+        assert changed[0] == default and changed[1] != forward and changed[2] == one_sided
+    finally:
+        monkeypatch.undo()
+        bench._gradient_settings.cache_clear()
 
 
 def test_a_block_may_choose_a_physics_preset(tmp_path):

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from harness.report.compare import AGGREGATED, STATISTICS, summarize, write_report
+from harness.report.compare import AGGREGATED, GROUP, STATISTICS, summarize, write_report
 from harness.report.formatting import fmt
 
 EVAL_FINALS = {"shac": [1.0, 2.0, 3.0, 4.0, 100.0], "sapo": [7.0]}
@@ -69,6 +69,24 @@ def _bootstrap_iqm_ci(values: list[float]) -> tuple[float, float]:
     return ci.low, ci.high
 
 
+def test_runs_of_other_settings_or_adapter_options_are_never_pooled(runs, tmp_path):
+    """Seeds pool only within the bench report's row: a run of another planned epoch count, env count or
+    adapter option (labelled in the backend column) is a row of its own, in the table and in the curves."""
+    variants = {"epochs": ("epochs", 40), "envs": ("num_envs", 8), "options": ("backend_options", {"fd_scheme": "x"})}
+    extra = []
+    for name, (key, value) in variants.items():
+        run = make_run(tmp_path / name, "shac", 9, 50.0, [1.0, 2.0])
+        config = json.loads((run / "config.json").read_text())
+        (config["algo"] if key == "num_envs" else config)[key] = value
+        (run / "config.json").write_text(json.dumps(config))
+        extra.append(run)
+    write_report(runs + extra, tmp_path / "out" / "cmp", "python -m harness report", plot=True)
+    with (tmp_path / "out" / "cmp_by_algo.csv").open() as fh:
+        rows = [row for row in csv.DictReader(fh) if row["algo"] == "shac"]
+    assert sorted(int(row["seeds"]) for row in rows) == [1, 1, 1, 5]
+    assert {row["backend"] for row in rows} == {"newton", "newton+fd_scheme=x"}
+
+
 def _by_algo(path: Path) -> dict[str, dict[str, str]]:
     with path.open() as fh:
         return {row["algo"]: row for row in csv.DictReader(fh)}
@@ -79,9 +97,7 @@ def test_by_algo_gives_iqm_with_the_bootstrap_ci_of_the_bench_report(runs, tmp_p
     assert [p.name for p in written] == ["cmp.md", "cmp.csv", "cmp_by_algo.csv"]
     table = _by_algo(tmp_path / "out" / "cmp_by_algo.csv")
     header = list(next(iter(table.values())))
-    assert header == ["task", "backend", "algo", "seeds", "env_steps"] + [
-        f"{c}_{k}" for c in AGGREGATED for k in STATISTICS
-    ]
+    assert header == [*GROUP, "seeds", "env_steps"] + [f"{c}_{k}" for c in AGGREGATED for k in STATISTICS]
 
     shac = table["shac"]
     finals = EVAL_FINALS["shac"]
@@ -103,9 +119,9 @@ def test_by_algo_gives_iqm_with_the_bootstrap_ci_of_the_bench_report(runs, tmp_p
     text = (tmp_path / "out" / "cmp.md").read_text()
     assert "95% percentile-bootstrap CI" in text and "Student" not in text
     assert "One training seed for some algorithms" in text
-    row = next(line for line in text.splitlines() if line.startswith("| ant | newton | shac |"))
+    row = next(line for line in text.splitlines() if line.startswith("| ant | newton |") and "| shac |" in line)
     assert f"| {fmt(3.0)} [{fmt(low)}, {fmt(high)}] |" in row
-    header_cells = next(line for line in text.splitlines() if line.startswith("| task | backend | algo |"))
+    header_cells = next(line for line in text.splitlines() if line.startswith("| task | backend | envs |"))
     assert header_cells.count("|") == row.count("|")  # one header per cell
 
 

@@ -56,12 +56,15 @@ Gradients (:meth:`MujocoWarpSim.fd_jacobians`, :class:`_MujocoWarpStep`):
   ``delta = 2 Im(conj(q^) * dq) / |q|`` (the radial part of ``dq`` gives ``delta = 0``). Hence
   ``dL/dq = (2 / |q|) E(conj(q^))^T dL/d delta`` where ``E(p) r = Im(p * r)``; the gradient
   along ``q`` itself is zero.
-* Schemes (option ``fd_scheme``): ``forward`` (the default), one-sided differences from the nominal
-  world, ``(f(x + eps e_i) - f(x)) / eps``, 1 + P worlds per env (37 on the Ant, 49 on the Go2), or
-  ``central`` as above, 1 + 2P (73, 97), or ``one_sided`` on central's worlds: per env and coordinate
-  the central quotient where the forward and backward quotients agree, and where they disagree (a
-  contact made or broken inside the stencil, where a finite step's quotient is the jump over the step
-  and no derivative) the smaller of the two, the one-sided derivative on the side without the switch.
+* Schemes (option ``fd_scheme``): ``one_sided`` (the default) on central's worlds, 1 + 2P per env
+  (73 on the Ant, 97 on the Go2): per env and coordinate the central quotient where the forward and
+  backward quotients agree, and where they disagree (a contact made or broken inside the stencil,
+  where a finite step's quotient is the jump over the step and no derivative) the smaller of the two,
+  the one-sided derivative on the side without the switch; ``central`` as above without that choice;
+  ``forward``, ``(f(x + eps e_i) - f(x)) / eps`` from the nominal world, 1 + P worlds per env (37,
+  49). ``one_sided`` is the default because it is the most accurate in contact and, unlike forward
+  differences, keeps training's actor gradients near Newton's exact ones at twice forward's cost
+  (docs/mujoco-warp.md has the measurements).
 * Steps, one per kind of coordinate: ``fd_eps_state`` (positions, metres and radians),
   ``fd_eps_velocity`` (velocities) and ``fd_eps_control`` (torques in N m, or PD targets in rad).
   Their defaults were chosen where training runs, in contact, against float64 MuJoCo C at the same
@@ -72,8 +75,9 @@ Gradients (:meth:`MujocoWarpSim.fd_jacobians`, :class:`_MujocoWarpStep`):
   The perturbed worlds' solver settings (``fd_warmstart``: the nominal world's warm start carried
   into them; ``fd_tolerance``: their solver tolerance) change no error measurably and cost more, so
   they stay off.
-* Cost: 1 + P worlds per env for a step with grad, 1 without; ``fd_chunk_envs`` (default: all envs)
-  bounds how many envs share one batch, i.e. memory, without changing the result.
+* Cost: the scheme's worlds per env for a step with grad (1 + 2P by default), 1 without;
+  ``fd_chunk_envs`` (default: all envs) bounds how many envs share one batch, i.e. memory, without
+  changing the result.
 
 Soft bodies (``TET_ACTIVATION``, the SoftJumper; :mod:`backends.mujoco_warp.soft`): the tet mesh as a
 ``dim = 3`` flex, one compiled model per env (each env's body has its own size), engine state
@@ -185,13 +189,13 @@ def _urdf_without_visuals(path) -> str:
 
 def fd_settings(task, options: dict) -> dict:
     """The finite-difference settings of ``task`` under adapter ``options``: each option's value, or
-    its default (module docstring), validated. Articulated tasks: ``fd_scheme`` (forward),
+    its default (module docstring), validated. Articulated tasks: ``fd_scheme`` (one_sided),
     ``fd_eps_state`` (positions), ``fd_eps_velocity`` (default: the positions' step),
     ``fd_eps_control``, ``fd_warmstart`` and ``fd_tolerance`` (the perturbed worlds' solves); soft
     bodies: central differences, ``fd_eps_state`` and ``fd_eps_control``."""
     soft = task.control_kind == ControlKind.TET_ACTIVATION
     position_control = task.control_kind == ControlKind.JOINT_POSITION_TARGET
-    scheme = str(options.get("fd_scheme", "central" if soft else "forward"))
+    scheme = str(options.get("fd_scheme", "central" if soft else "one_sided"))
     if scheme not in FD_SCHEMES:
         raise ValueError(f"fd_scheme must be one of {', '.join(FD_SCHEMES)}, got {scheme!r}")
     if soft:  # not measured against a reference for soft bodies: kept central

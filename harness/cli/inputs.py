@@ -62,14 +62,15 @@ def _check_output_file(out: str) -> None:
     """A result file (or prefix) we may write: not empty, not a directory, in a writable place."""
     from pathlib import Path
 
-    from harness.results import writable_parent
+    from harness.results import path_problem
 
     if not out.strip():
         raise BadInput("--out is empty: name a file")
+    problem = path_problem(out)
+    if problem:
+        raise BadInput(f"--out {out}: {problem}")
     if Path(out).is_dir():
         raise BadInput(f"--out {out} is a directory; name a file")
-    if writable_parent(Path(out)) is None:
-        raise BadInput(f"--out {out}: its nearest existing folder is not a writable directory")
 
 
 def _algo_config(args, name: str):

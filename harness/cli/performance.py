@@ -82,6 +82,8 @@ def cmd_solver_probe(args) -> int:
     _validate_names(args.backend, args.task)
     if args.task not in ("ant", "go2", "soft_jumper"):
         raise BadInput(f"solver-probe has candidates for the tasks ant, go2 and soft_jumper, not {args.task!r}")
+    if args.out:
+        _check_output_file(args.out)
     run_probe(
         num_envs=args.num_envs,
         out=args.out,

@@ -113,6 +113,7 @@ def cmd_sweep(args) -> int:
     (runs addressed and reused as the bench's, tables and plots beside them in OUT)."""
     from pathlib import Path
 
+    from harness.results import path_problem
     from harness.runner import run_suite
 
     _validate_names(args.backend, args.task)
@@ -121,6 +122,9 @@ def cmd_sweep(args) -> int:
         _algo_config(args, name)  # refuse bad input before any training
     if not args.out.strip():
         raise BadInput("--out is empty: name a directory for the sweep")
+    problem = path_problem(Path(args.out) / "runs" / "config.json")
+    if problem:
+        raise BadInput(f"--out {args.out}: {problem}")
     out = Path(args.out).resolve()
     if out.exists() and not out.is_dir():
         raise BadInput(f"--out {args.out} is an existing file, not a directory")

@@ -2,7 +2,8 @@
 directories (``config.json``, ``metrics.jsonl``, ``eval.json``).
 
 :func:`write_report` writes ``PREFIX.md`` and ``PREFIX.csv`` (one row per run), ``PREFIX_by_algo.csv`` and a
-second table in ``PREFIX.md`` (per task, backend and algorithm, over training seeds) and ``PREFIX.png``
+second table in ``PREFIX.md`` (over training seeds, per task, backend, setting and algorithm: the bench
+report's rows, so runs of other adapter options, env counts, planned epochs or horizons never pool), and ``PREFIX.png``
 (curves). Over seeds every column gets the bench report's statistics (:mod:`harness.report.stats`): the
 interquartile mean with a 95% percentile-bootstrap confidence interval over seeds (2000 resamples,
 ``np.random.default_rng(0)``; n/a under 2 seeds or with an infinite value), and the mean and sample std.
@@ -19,6 +20,7 @@ import numpy as np
 
 from harness.report.formatting import fmt, fmt_ci, is_missing
 from harness.report.plots import CURVE_BOOTSTRAP, pyplot, save_figure
+from harness.report.records import backend_label, task_label
 from harness.report.stats import BOOTSTRAP_SEED, epoch_median, iqm, iqm_with_ci, sample_std
 from harness.results import atomic_write_text, read_metrics
 
@@ -68,9 +70,12 @@ def summarize(run: str | Path) -> dict:
     return {
         "run": run.name,
         "algo": config["algo"]["algo"],
-        "backend": config["backend"],
-        "task": config["task"],
+        "backend": backend_label(config["backend"], config),
+        "task": task_label(config["task"], config),
         "seed": config["seed"],
+        "num_envs": config["algo"].get("num_envs"),
+        "horizon": config["algo"].get("horizon"),
+        "planned_epochs": config.get("epochs"),
         "epochs": len(rows),
         "env_steps": rows[-1]["env_steps"] if rows else 0,
         "wall_min": rows[-1]["wall_s"] / 60.0 if rows else 0.0,
@@ -116,6 +121,8 @@ AGGREGATED = (
     "final_lambda",
     "wall_min",
 )
+#: what a row over seeds pools: the bench report's (``RunRecord.group``)
+GROUP = ("task", "backend", "num_envs", "horizon", "planned_epochs", "algo")
 #: what ``PREFIX_by_algo.csv`` gives of every AGGREGATED column over seeds
 STATISTICS = ("iqm", "ci_low", "ci_high", "mean", "std")
 
@@ -137,14 +144,15 @@ def over_seeds(values: list[float]) -> dict[str, float | None]:
 
 
 def aggregate(summaries: list[dict]) -> list[dict]:
-    """Per (task, backend, algo): seeds, and the STATISTICS of every AGGREGATED column over its seeds
-    (the seeds that have a value: a run without eval.json counts for the training columns only)."""
+    """Per task, backend, setting (envs, horizon, planned epochs) and algorithm: seeds, and the STATISTICS of
+    every AGGREGATED column over its seeds (the seeds that have a value: a run without eval.json counts for
+    the training columns only)."""
     groups: dict[tuple, list[dict]] = {}
     for s in summaries:
-        groups.setdefault((s["task"], s["backend"], s["algo"]), []).append(s)
+        groups.setdefault(tuple(s[k] for k in GROUP), []).append(s)
     rows = []
-    for (task, backend, algo), members in groups.items():
-        row = {"task": task, "backend": backend, "algo": algo, "seeds": len(members)}
+    for key, members in groups.items():
+        row = dict(zip(GROUP, key, strict=True)) | {"seeds": len(members)}
         row["env_steps"] = members[0]["env_steps"]
         for col in AGGREGATED:
             found = over_seeds([m[col] for m in members if not is_missing(m[col])])
@@ -168,7 +176,7 @@ def write_report(runs: list[Path], out_prefix: str | Path, command: str, plot: b
     summaries = [summarize(r) for r in runs]
     md_path, csv_path = write_table(summaries, out_prefix, command)
     agg = aggregate(summaries)
-    cols = ["task", "backend", "algo", "seeds", "env_steps"] + [f"{c}_{k}" for c in AGGREGATED for k in STATISTICS]
+    cols = [*GROUP, "seeds", "env_steps"] + [f"{c}_{k}" for c in AGGREGATED for k in STATISTICS]
     csv = [",".join(cols)] + [",".join(_csv_cell(r[c]) for c in cols) for r in agg]
     agg_csv = atomic_write_text(out_prefix.parent / f"{out_prefix.name}_by_algo.csv", "\n".join(csv) + "\n")
     md = [
@@ -184,12 +192,13 @@ def write_report(runs: list[Path], out_prefix: str | Path, command: str, plot: b
             "",
         ]
     md += [
-        "| task | backend | algo | seeds | env steps | eval final | eval initial | train return, last 20 | "
-        "median actor-grad var | median actor-grad NSR | median actor-grad cosine | final lambda | wall min |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| task | backend | envs | h | epochs | algo | seeds | env steps | eval final | eval initial | "
+        "train return, last 20 | median actor-grad var | median actor-grad NSR | median actor-grad cosine | "
+        "final lambda | wall min |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in agg:
-        cells = [r["task"], r["backend"], r["algo"], str(r["seeds"]), fmt(r["env_steps"])]
+        cells = [*(fmt(r[k]) for k in GROUP), str(r["seeds"]), fmt(r["env_steps"])]
         cells += [_iqm_cell(r, c) for c in AGGREGATED]
         md.append("| " + " | ".join(cells) + " |")
     with md_path.open("a") as fh:
@@ -201,10 +210,13 @@ def write_report(runs: list[Path], out_prefix: str | Path, command: str, plot: b
 
 
 def plot_curves(runs: list[str | Path], out_png: str | Path, smooth: int = 10) -> Path:
-    """Train return vs env steps and vs wall time, actor-gradient variance and lambda, per run."""
+    """Train return vs env steps and vs wall time, actor-gradient variance and lambda: per table row over
+    its seeds (mean and 95% bootstrap band), or per run where every row has one seed."""
     import pandas as pd
 
     plt, sns = pyplot()
+    groups = {Path(run): tuple(summarize(run)[k] for k in GROUP) for run in runs}
+    varying = [k for k in range(len(GROUP)) if len({g[k] for g in groups.values()}) > 1 or GROUP[k] == "algo"]
     frames = []
     for run in runs:
         rows = _read_rows(Path(run))
@@ -212,7 +224,9 @@ def plot_curves(runs: list[str | Path], out_png: str | Path, smooth: int = 10) -
             continue
         df = pd.DataFrame(rows)
         df["run"] = f"{Path(run).name}"
-        df["algo"] = json.loads((Path(run) / "config.json").read_text())["algo"]["algo"]
+        # a curve pools only the seeds of one table row, named by what differs between the rows
+        group = groups[Path(run)]
+        df["algo"] = " ".join(group[k] if GROUP[k] == "algo" else f"{GROUP[k]}={group[k]}" for k in varying)
         df["return (smoothed)"] = df["train_episode_return"].astype(float).rolling(smooth, min_periods=1).mean()
         df["wall time (min)"] = df["wall_s"] / 60.0
         df["actor grad variance"] = df["actor_grad_var"].astype(float)

@@ -130,7 +130,7 @@ def metric_column(frame: pd.DataFrame, name: str) -> pd.Series:
     return pd.to_numeric(frame[name], errors="coerce").astype(float)
 
 
-def _task_label(task: str, config: dict) -> str:
+def task_label(task: str, config: dict) -> str:
     """The task as tables name it: ``ant`` on the task's default physics preset, ``ant.rewarped`` on
     another (as the suite names its run folders), so runs of two physics never pool as seeds of one row."""
     import tasks
@@ -144,7 +144,7 @@ def _task_label(task: str, config: dict) -> str:
     return task if preset in (None, default) else f"{task}.{preset}"
 
 
-def _backend_label(backend: str, config: dict) -> str:
+def backend_label(backend: str, config: dict) -> str:
     """The backend as tables name it: ``mujoco_warp``, or ``mujoco_warp+fd_scheme=one_sided`` for a run
     built with explicit adapter options, so runs of two gradient settings never pool as seeds of one row."""
     options = config.get("backend_options") or {}
@@ -192,8 +192,8 @@ def load_run(run_dir: Path, stream=None) -> RunRecord | None:
     landscape = _read_json(run_dir / "landscape.json", stream)
     return RunRecord(
         path=run_dir,
-        task=_task_label(task, config),
-        backend=_backend_label(backend, config),
+        task=task_label(task, config),
+        backend=backend_label(backend, config),
         algo=algo,
         horizon=horizon,
         seed=seed,
