@@ -84,6 +84,7 @@ def test_peer_without_its_interpreter_says_what_to_set(capsys, monkeypatch, tmp_
 
 def test_fd_schemes_measures_forward_differences_against_the_float64_reference(tmp_path):
     pytest.importorskip("mujoco_warp")
+    from backends.mujoco_warp.adapter import FD_EPS_STATE
     from harness.fd_schemes import fd_schemes, markdown
 
     grid = (
@@ -107,8 +108,8 @@ def test_fd_schemes_measures_forward_differences_against_the_float64_reference(t
         progress=lambda _: None,
     )
     first, second, control = report["rows"]
-    # the control-step row: the adapter's default settings, its control step scaled
-    assert control["fd_eps_control"] == pytest.approx(0.1) and control["fd_eps_state"] == 2.5e-4
+    # the control-step row: the adapter's default settings (one-sided differences), its control step scaled
+    assert control["fd_eps_control"] == pytest.approx(0.1) and control["fd_eps_state"] == FD_EPS_STATE["one_sided"]
     assert set(first["contact_error_median_by_kind"]) == {"position", "velocity", "control"}
     assert first["worlds_per_env"] == 1 + 14 * 2 + 8
     assert first["contact_free_error_max"] < 1e-3 and second["contact_free_error_max"] < 1e-3

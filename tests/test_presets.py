@@ -83,7 +83,7 @@ def test_adapter_options_travel_with_a_run(tmp_path):
     base = RunSpec(
         task="ant", backend="mujoco_warp", algo="shac", seed=0, epochs=1, num_envs=4, horizon=2, device="cpu"
     )
-    one_sided = dataclasses.replace(base, backend_options=(("fd_scheme", "one_sided"),))
-    assert one_sided.key != base.key
-    assert one_sided.identity()["gradients"]["mujoco_warp"]["fd_scheme"] == "one_sided"
-    assert base.identity()["gradients"]["mujoco_warp"]["fd_scheme"] == "forward"
+    forward = dataclasses.replace(base, backend_options=(("fd_scheme", "forward"),))
+    assert forward.key != base.key
+    assert forward.identity()["gradients"]["mujoco_warp"]["fd_scheme"] == "forward"
+    assert base.identity()["gradients"]["mujoco_warp"]["fd_scheme"] == "one_sided"  # the default
