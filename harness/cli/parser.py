@@ -73,7 +73,7 @@ def _finite(text: str) -> float:
     return value
 
 
-def _option(text: str) -> tuple[str, object]:
+def parse_option(text: str) -> tuple[str, object]:
     """``KEY=VALUE`` with VALUE read as an int, a float or else a string."""
     key, sep, value = text.partition("=")
     if not sep or not key.strip() or not value.strip():
@@ -150,7 +150,7 @@ FLAGS: dict[str, dict] = {
         "help": "GPU fraction each run asks Ray for when the device is CUDA",
     },
     "backend_option": {
-        "type": _option,
+        "type": parse_option,
         "action": "append",
         "metavar": "KEY=VALUE",
         "help": "adapter option, repeatable, e.g. fd_scheme=central (see the adapter's docstring)",
