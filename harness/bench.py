@@ -440,6 +440,34 @@ def _episode(task: str, cap: int | None) -> int:
     return min(cap or 10**9, int(tasks.task_class(task).episode_length))
 
 
+def memory_problem(jobs: list[Job], at_once: int, device: str = "cpu") -> str | None:
+    """Why the training jobs cannot fit in this machine's memory ``at_once`` at a time (the largest ones
+    together), as a phrase with the estimate and the limit; None when they may (harness.resources)."""
+    from harness.resources import available_bytes, estimate_bytes, gib
+
+    needs = []
+    for job in jobs:
+        run = job.run
+        if job.kind != "train" or run is None:
+            continue
+        train = estimate_bytes(run.backend, run.task, run.num_envs, run.horizon)
+        evaluation = estimate_bytes(run.backend, run.task, run.eval_num_envs or 2 * run.num_envs, grads=False)
+        if train is not None:
+            needs.append((max(train, evaluation or 0.0), job.label))
+    have = available_bytes(device)
+    if not needs or have is None:
+        return None
+    top = sorted(needs, reverse=True)[: max(at_once, 1)]
+    total = sum(need for need, _ in top)
+    if total <= have:
+        return None
+    largest, label = top[0]
+    together = f", the {len(top)} largest at once {gib(total)}" if len(top) > 1 else ""
+    fits = int(have // largest)
+    advice = f"run at most {fits} at once (--jobs {fits})" if fits >= 1 else "give it fewer envs or a shorter horizon"
+    return f"{label} needs at least {gib(largest)}{together}; {device} has {gib(have)} free: {advice}"
+
+
 def train_job(run: RunSpec, run_dir: Path) -> Job:
     """The job that trains (or resumes) ``run`` in ``run_dir`` and evaluates it: ``bench-run RUN_DIR``."""
     # initial and final policy, every seed, at most one episode each

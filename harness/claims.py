@@ -104,8 +104,9 @@ class Claim:
         heartbeat_s: float = HEARTBEAT_S,
         stale_s: float = STALE_S,
         poll_s: float = 1.0,
-        stream=sys.stdout,
+        stream=None,
     ):
+        stream = stream or sys.stdout  # the stdout of now, not of import time
         self.run_dir = Path(run_dir)
         self.heartbeat_s, self.stale_s, self.poll_s, self.stream = heartbeat_s, stale_s, poll_s, stream
         self.generation: int | None = None

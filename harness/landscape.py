@@ -174,7 +174,7 @@ def compute_landscape(
     seed: int = 0,
     warmup_steps: int = 0,
     checkpoint: str = CHECKPOINT,
-    stream=sys.stdout,
+    stream=None,
 ) -> dict:
     """h-step (eq. 9) and TD-lambda (eq. 12) actor losses over a ``grid`` x ``grid`` plane of actor parameters.
 
@@ -193,6 +193,7 @@ def compute_landscape(
     Returns the result dict (see :func:`write_landscape`); ``roughness`` (see :func:`roughness`) is
     ``None`` for a surface with non-finite points, whose count ``nonfinite`` gives.
     """
+    stream = stream or sys.stdout  # the stdout of now, not of import time
     run_dir = Path(run_dir)
     if isinstance(grid, bool) or not isinstance(grid, int) or grid < 2:
         raise RunError(f"landscape grid must be an integer >= 2, got {grid!r}")

@@ -26,15 +26,15 @@ FILMSTRIP_FRAMES = 6
 EVAL_SEED = 10_000  # evaluate()'s first seed
 
 
-def rollout(run_dir: Path, backend: str, steps: int) -> tuple[object, list[np.ndarray], list[float]]:
-    """The task, env 0's state before each step (what the scene draws) and the return so far."""
+def rollout(run_dir: Path, config: dict, backend: str, steps: int) -> tuple[object, list[np.ndarray], list[float]]:
+    """The task, env 0's state before each step (what the scene draws) and the return so far; ``config``:
+    the run's, as :func:`harness.run_folder.open_run` checked it for ``backend``."""
     from algorithms.actor_critic import FirstOrderActorCritic
     from backends.render import state_picture_input
     from harness.envs import make_env, run_task
-    from harness.run_folder import CHECKPOINT, open_run
+    from harness.run_folder import CHECKPOINT
     from harness.train import load_checkpoint
 
-    config = open_run(run_dir, (CHECKPOINT,), backend)
     cfg = config["algo_config"]
     torch.manual_seed(EVAL_SEED)
     options = config.get("backend_options") if backend == config["backend"] else None
@@ -65,11 +65,11 @@ def _label(image: np.ndarray, text: str) -> np.ndarray:
     return np.asarray(picture)
 
 
-def frames_of(run_dir: Path, backend: str, steps: int, frames: int) -> tuple[list[np.ndarray], list[int]]:
+def frames_of(run_dir: Path, config: dict, backend: str, steps: int, frames: int) -> tuple[list[np.ndarray], list[int]]:
     """``frames`` labelled pictures of the policy on ``backend`` and the steps they show."""
     from backends.render import scene_for
 
-    task, states, returns = rollout(run_dir, backend, steps)
+    task, states, returns = rollout(run_dir, config, backend, steps)
     picks = sorted(set(np.linspace(0, len(states) - 1, min(frames, len(states))).round().astype(int).tolist()))
     scene = scene_for(task)
     try:
@@ -132,13 +132,17 @@ def write_filmstrip(pictures: list[np.ndarray], path: Path) -> Path:
 
 
 def render(run_dir: str | Path, backends: list[str], steps: int, frames: int, stream=None) -> list[Path]:
-    """Write the video and filmstrip of the run's final policy on ``backends`` (two: side by side)."""
+    """Write the video and filmstrip of the run's final policy on ``backends`` (two: side by side). The run
+    folder is checked for every backend before the first frame."""
+    from harness.run_folder import CHECKPOINT, open_run
+
     run_dir = Path(run_dir)
     stream = stream or sys.stdout
+    configs = [open_run(run_dir, (CHECKPOINT,), backend) for backend in backends]
     panels = []
-    for backend in backends:
+    for backend, config in zip(backends, configs, strict=True):
         print(f"render {run_dir.name} on {backend}: {steps} steps at most, {frames} frames", file=stream, flush=True)
-        panels.append(frames_of(run_dir, backend, steps, frames)[0])
+        panels.append(frames_of(run_dir, config, backend, steps, frames)[0])
     # an episode that ends earlier on one engine keeps showing its last frame beside the other
     longest = max(len(p) for p in panels)
     pictures = [np.concatenate([p[min(k, len(p) - 1)] for p in panels], axis=1) for k in range(longest)]

@@ -25,6 +25,7 @@ from harness.bench import (
     _training_complete,
     check_spec,
     load_spec,
+    memory_problem,
     plan,
 )
 from harness.claims import Claim
@@ -90,9 +91,10 @@ class _Progress:
         self.display.show(text, final=True)
 
 
-def run_jobs(jobs: list[Job], store: Path, workers: int, name: str, stream=sys.stdout, launcher=None) -> list[Job]:
+def run_jobs(jobs: list[Job], store: Path, workers: int, name: str, stream=None, launcher=None) -> list[Job]:
     """Run the jobs not yet done, ``workers`` at a time, in order, each after the jobs it needs, on
     ``launcher`` (harness/launchers.py; default: local processes)."""
+    stream = stream or sys.stdout  # the stdout of now, not of import time
     from harness.launchers import LocalLauncher, last_error_line
 
     launcher = launcher or LocalLauncher(workers)
@@ -217,8 +219,9 @@ def _write_job_file(job: Job) -> None:
     write_json(job.run_dir / "job.json", payload)
 
 
-def bench_run(run_dir: str | Path, stream=sys.stdout) -> Path:
+def bench_run(run_dir: str | Path, stream=None) -> Path:
     """One training run of the suite: train, or resume an interrupted one, then evaluate (``bench-run``)."""
+    stream = stream or sys.stdout  # the stdout of now, not of import time
     run_dir = Path(run_dir)
     path = run_dir / "job.json"
     if not path.is_file():
@@ -290,13 +293,14 @@ def run_suite(
     dry_run: bool = False,
     report_only: bool = False,
     command: str | None = None,
-    stream=sys.stdout,
+    stream=None,
     launcher: str = "local",
     address: str | None = None,
     gpus_per_run: float = 0.25,
 ) -> int:
     """Plan, run what is missing (on the local or the Ray launcher), write the tables and plots; 0 when
     every job succeeded. The spec is a profile, a TOML file or ``spec``, one made in memory (``sweep``)."""
+    stream = stream or sys.stdout  # the stdout of now, not of import time
     from harness.launchers import make_launcher
 
     if spec is not None:
@@ -319,6 +323,9 @@ def run_suite(
         print(f"{len(all_jobs)} jobs; about {duration(total / max(workers, 1))} on {workers} workers", file=stream)
         return 0
     if not report_only:
+        problem = memory_problem(all_jobs, workers, data["suite"].get("device", "cpu")) if launcher == "local" else None
+        if problem:
+            raise RunError(f"{spec_path}: {problem}")
         runner = make_launcher(
             launcher, jobs if launcher == "ray" else workers, address, data["suite"].get("device", "cpu"), gpus_per_run
         )

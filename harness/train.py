@@ -134,7 +134,8 @@ def _apply_checkpoint(payload: dict, algo: FirstOrderActorCritic, env=None) -> d
 class _Progress:
     """Training's progress bar: epochs done, return, lambda, rate and ETA (:class:`harness.progress.ProgressLine`)."""
 
-    def __init__(self, total: int, start: int, stream=sys.stdout):
+    def __init__(self, total: int, start: int, stream=None):
+        stream = stream or sys.stdout  # the stdout of now, not of import time
         self.total, self.start = total, start
         self.line = ProgressLine(stream, every=max(1, total // 20))
         self.t0 = time.perf_counter()
@@ -231,13 +232,14 @@ def train(
     device: str = "cpu",
     checkpoint_every: int = 1,
     command: str | None = None,
-    stream=sys.stdout,
+    stream=None,
     preset: str | None = None,
     backend_options: dict[str, object] | None = None,
 ) -> Path:
     """Start a new run in ``run_dir`` (which must not hold one) and train it for ``epochs`` epochs on the
     task's physics ``preset`` (its default when ``None``), the adapter built with ``backend_options``
     (``--backend-option``: finite-difference scheme and steps, for example; recorded, and kept on resume)."""
+    stream = stream or sys.stdout  # the stdout of now, not of import time
     run_dir = check_output_dir(run_dir)
     algo_config = algo_config.replace(max_epochs=algo_config.max_epochs or epochs)
     config = {
@@ -260,9 +262,10 @@ def resume(
     epochs: int | None = None,
     checkpoint_every: int = 1,
     command: str | None = None,
-    stream=sys.stdout,
+    stream=None,
 ) -> Path:
     """Continue the run in ``run_dir`` from its last checkpoint, up to ``epochs`` in total (default: as planned)."""
+    stream = stream or sys.stdout  # the stdout of now, not of import time
     run_dir = Path(run_dir)
     config = read_config(run_dir)
     check_here(config)
@@ -424,7 +427,7 @@ def evaluate(
     num_envs: int | None = None,
     checkpoint: str = CHECKPOINT,
     max_steps: int | None = None,
-    stream=sys.stdout,
+    stream=None,
     backend: str | None = None,
     out: str | Path | None = None,
 ) -> dict:
@@ -434,6 +437,7 @@ def evaluate(
     protocol and policy; the observation statistics travel with the checkpoint). Written to
     ``eval_on_<backend>.json`` instead of ``eval.json``, unless ``out`` names the file.
     """
+    stream = stream or sys.stdout  # the stdout of now, not of import time
     run_dir = Path(run_dir)
     config = open_run(run_dir, (INIT_CHECKPOINT, checkpoint), backend)
     cfg = config["algo_config"]

@@ -145,3 +145,20 @@ def test_a_run_given_twice_counts_once(runs, tmp_path):
     write_report([runs[0], *runs], out, "cmd", plot=False)
     rows = list(csv.DictReader(open(out.with_suffix(".csv"))))
     assert len(rows) == len(runs)
+
+
+def test_damaged_and_stale_files_are_said_in_one_line_each_and_not_counted(runs, tmp_path, capsys):
+    """The bench report's reader: a truncated eval.json, a stale one (older than the run's last epoch) and a
+    metrics file that is not JSON lines are each said once and leave their columns empty; no traceback."""
+    truncated = (runs[0] / "eval.json").read_text()
+    (runs[0] / "eval.json").write_text(truncated[: len(truncated) // 2])
+    stale = json.loads((runs[1] / "eval.json").read_text()) | {"policy_epoch": 2}
+    (runs[1] / "eval.json").write_text(json.dumps(stale))
+    (runs[2] / "metrics.jsonl").write_text("not json\n{}\n")
+    write_report(runs, tmp_path / "out" / "cmp", "cmd", plot=True)
+    said = [line for line in capsys.readouterr().out.splitlines() if not line.startswith("wrote")]
+    assert len(said) == 3, said
+    assert "ignored" in said[0] and "stale" in said[1] and "metrics ignored" in said[2]
+    rows = {row["run"]: row for row in csv.DictReader(open(tmp_path / "out" / "cmp.csv"))}
+    assert rows[runs[0].name]["eval_final"] == rows[runs[1].name]["eval_final"] == ""
+    assert rows[runs[2].name]["epochs"] == "0" and rows[runs[3].name]["eval_final"] == "4.0"

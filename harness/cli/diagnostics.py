@@ -6,6 +6,7 @@ from algorithms.config import ALGORITHMS
 from harness.cli.inputs import (
     BadInput,
     _check_device,
+    _check_memory,
     _check_output_file,
     _check_preset,
     _command,
@@ -23,6 +24,7 @@ def cmd_gradcheck(args) -> int:
     _check_device(args.device)
     if args.out:
         _check_output_file(args.out)
+    _check_memory(args.backend, args.task, args.num_envs, args.steps, args.device)
     sim = _make_sim(args, horizon=args.steps)
     tolerance = args.tolerance or DEFAULT_TOLERANCE
     start_height = None
@@ -97,6 +99,7 @@ def cmd_grad_paths(args) -> int:
         raise BadInput(f"unknown algorithm {args.algo!r}; choose from: {', '.join(ALGORITHMS)}")
     if args.out:
         _check_output_file(args.out)
+    _check_memory(args.backend, args.task, args.num_envs, args.horizon, args.device)
     print(f"grad-paths {args.algo} on {args.backend}/{args.task}: {args.epochs} epochs, four rollouts of each window")
     try:
         result = grad_paths(
@@ -132,6 +135,7 @@ def cmd_parity(args) -> int:
     if args.out:
         _check_output_file(args.out)
     _check_preset(args.task, args.preset)
+    _check_memory(args.backends, args.task, args.num_envs)
     try:
         result = parity(
             args.task,
@@ -178,6 +182,7 @@ def cmd_contact_jacobians(args) -> int:
     if args.out:
         _check_output_file(args.out)
     _check_preset(args.task, args.preset)
+    _check_memory(args.backend, args.task, args.num_envs, 1, args.device)
     try:
         result = contact_jacobians(
             args.task,
@@ -214,6 +219,7 @@ def cmd_crosscheck(args) -> int:
         raise BadInput(f"--backends needs two or more different backends to compare, got {' '.join(args.backends)}")
     if args.out:
         _check_output_file(args.out)
+    _check_memory(args.backends, args.task, args.num_envs, args.steps)
     from tasks import task_class
 
     if task_class(args.task).layout.num_particles:  # soft bodies: forward rollouts (module docstring)

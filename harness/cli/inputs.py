@@ -58,6 +58,19 @@ def _check_preset(task: str, preset: str | None) -> None:
         raise BadInput(str(exc)) from None
 
 
+def _check_memory(
+    backends: str | list[str], task: str, num_envs: int, horizon: int = 0, device: str = "cpu", flag: str = "--num-envs"
+) -> None:
+    """Refuse ``num_envs`` (with gradients over ``horizon`` steps, 0: none) that cannot fit in this
+    machine's memory on any of ``backends``: one line with the estimate and the limit."""
+    from harness.resources import memory_problem
+
+    for backend in [backends] if isinstance(backends, str) else backends:
+        problem = memory_problem(backend, task, num_envs, horizon, grads=horizon > 0, device=device)
+        if problem:
+            raise BadInput(f"{flag} {num_envs}: {problem}")
+
+
 def _check_output_file(out: str) -> None:
     """A result file (or prefix) we may write: not empty, not a directory, in a writable place."""
     from pathlib import Path

@@ -5,6 +5,7 @@ from __future__ import annotations
 from harness.cli.inputs import (
     BadInput,
     _check_device,
+    _check_memory,
     _check_output_file,
     _command,
     _make_sim,
@@ -22,6 +23,7 @@ def cmd_throughput(args) -> int:
     _check_device(args.device)
     if args.out:
         _check_output_file(args.out)
+    _check_memory(args.backend, args.task, args.num_envs, 0 if args.grad_cost_only else args.horizon, args.device)
     sim = _make_sim(args, horizon=args.horizon)
     print(
         f"throughput {args.backend}/{args.task} (preset {sim.task.preset_label}, {sim.integrator}): "
@@ -84,6 +86,7 @@ def cmd_solver_probe(args) -> int:
         raise BadInput(f"solver-probe has candidates for the tasks ant, go2 and soft_jumper, not {args.task!r}")
     if args.out:
         _check_output_file(args.out)
+    _check_memory(args.backend, args.task, args.num_envs)
     run_probe(
         num_envs=args.num_envs,
         out=args.out,
@@ -124,6 +127,7 @@ def cmd_fd_schemes(args) -> int:
     prefix = out_stem(args.out) if args.out else None  # PREFIX or PREFIX.json: both files
     if prefix:
         _check_output_file(prefix + ".json")
+    _check_memory("mujoco_warp", args.task, max(args.num_envs, args.timing_envs), 1)
     from harness.fd_schemes import fd_schemes, markdown
 
     print(f"fd-schemes mujoco_warp/{args.task}: accuracy on {args.num_envs} envs, cost at {args.timing_envs} envs")
@@ -153,6 +157,9 @@ def cmd_scaling(args) -> int:
     suffix = ("" if args.device == "cpu" else "_cuda") + ("_forward" if args.forward_only else "")
     out = out_stem(args.out) if args.out else f"results/scaling_{args.backend}_{args.task}{suffix}"
     _check_output_file(out + ".csv")
+    _check_memory(
+        args.backend, args.task, args.envs[-1], 0 if args.forward_only else args.horizon, args.device, "--envs"
+    )
     print(f"scaling {args.backend}/{args.task}: envs {args.envs}, {args.horizon}-step windows, best of {args.windows}")
     rows = scaling(
         args.backend,

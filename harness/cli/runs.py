@@ -6,6 +6,7 @@ from harness.cli.inputs import (
     BadInput,
     _algo_config,
     _check_device,
+    _check_memory,
     _check_output_file,
     _check_preset,
     _command,
@@ -50,6 +51,7 @@ def cmd_train(args) -> int:
     _check_device(args.device)
     _check_preset(args.task, args.preset)
     cfg = _algo_config(args, args.algo)
+    _check_memory(args.backend, args.task, cfg.num_envs, cfg.horizon, args.device)
     train(
         args.out,
         args.task,
@@ -77,6 +79,8 @@ def cmd_eval(args) -> int:
         _validate_names(args.backend, config["task"])
     if args.out:
         _check_output_file(args.out)
+    if args.num_envs:
+        _check_memory(args.backend or config["backend"], config["task"], args.num_envs, 0, config["device"])
     result = evaluate(
         args.run,
         seeds=args.eval_seeds,
@@ -185,7 +189,7 @@ def cmd_render(args) -> int:
 
     os.environ.setdefault("MUJOCO_GL", "egl")  # before anything imports MuJoCo: headless rendering
     from harness.render import compared_backends, render
-    from harness.run_folder import CHECKPOINT, open_run, read_config
+    from harness.run_folder import read_config
 
     trained_on = read_config(Path(args.run))["backend"]
     if args.compare and args.backend:
@@ -193,8 +197,6 @@ def cmd_render(args) -> int:
     if args.backend:
         _validate_names(args.backend, None)
     shown = compared_backends(trained_on) if args.compare else [args.backend or trained_on]
-    for backend in shown:  # every check before the first frame
-        open_run(args.run, (CHECKPOINT,), backend)
     render(args.run, shown, args.max_steps or 300, args.frames)
     return 0
 
@@ -205,7 +207,9 @@ def cmd_landscape(args) -> int:
     from harness.landscape import compute_landscape, plot_landscape, write_landscape
     from harness.run_folder import read_config
 
-    read_config(Path(args.run))
+    config = read_config(Path(args.run))
+    if args.num_envs:  # one window of the run's h steps per point, no backward pass
+        _check_memory(config["backend"], config["task"], args.num_envs, 0, config["device"])
     result = compute_landscape(
         args.run, grid=args.grid, span=args.span, num_envs=args.num_envs, seed=args.seed, warmup_steps=args.warmup_steps
     )

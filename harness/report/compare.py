@@ -12,17 +12,17 @@ The curves show the mean over seeds with a 95% bootstrap band.
 
 from __future__ import annotations
 
-import json
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
 
 from harness.report.formatting import fmt, fmt_ci, is_missing
 from harness.report.plots import CURVE_BOOTSTRAP, pyplot, save_figure
-from harness.report.records import backend_label, task_label
+from harness.report.records import RunRecord, load_run, say
 from harness.report.stats import BOOTSTRAP_SEED, epoch_median, iqm, iqm_with_ci, sample_std
-from harness.results import atomic_write_text, read_metrics
+from harness.results import RunError, atomic_write_text
 
 COLUMNS = (
     "run",
@@ -49,10 +49,6 @@ COLUMNS = (
 )
 
 
-def _read_rows(run: Path) -> list[dict]:
-    return read_metrics(run / "metrics.jsonl")  # a torn last line (a killed run) is dropped
-
-
 def _median(rows: list[dict], key: str) -> float | None:
     """The median of ``key`` over the epochs that logged it (:func:`harness.report.stats.epoch_median`:
     NaN, a skipped update, dropped; +inf, an unresolved noise-to-signal ratio, kept); None when none did."""
@@ -60,40 +56,45 @@ def _median(rows: list[dict], key: str) -> float | None:
     return None if math.isnan(median) else median
 
 
-def summarize(run: str | Path) -> dict:
-    run = Path(run)
-    config = json.loads((run / "config.json").read_text())
-    rows = _read_rows(run)
-    ev = json.loads((run / "eval.json").read_text()) if (run / "eval.json").exists() else None
-    returns = [r["train_episode_return"] for r in rows[-20:] if r.get("train_episode_return") is not None]
-    total = lambda key: sum(r.get(key, 0.0) for r in rows) / 60.0  # noqa: E731
+def summarize(run: str | Path | RunRecord, stream=None) -> dict | None:
+    """One run's row. Read by the bench report's reader (:func:`harness.report.records.load_run`): a damaged
+    file is skipped with one line on ``stream``, a resumed run's repeated epochs count once, an eval.json
+    older than the run's last epoch counts as no evaluation; None where config.json is unusable."""
+    record = run if isinstance(run, RunRecord) else load_run(Path(run), stream)
+    if record is None:
+        return None
+    rows = record.metrics.to_dict("records")
+    ev = record.evaluation
+    returns = [r["train_episode_return"] for r in rows[-20:] if not is_missing(r.get("train_episode_return"))]
+    total = lambda key: sum(r[key] for r in rows if not is_missing(r.get(key))) / 60.0  # noqa: E731
+    final = lambda key: ev["final"].get(key) if ev else None  # noqa: E731
     return {
-        "run": run.name,
-        "algo": config["algo"]["algo"],
-        "backend": backend_label(config["backend"], config),
-        "task": task_label(config["task"], config),
-        "seed": config["seed"],
-        "num_envs": config["algo"].get("num_envs"),
-        "horizon": config["algo"].get("horizon"),
-        "planned_epochs": config.get("epochs"),
-        "epochs": len(rows),
-        "env_steps": rows[-1]["env_steps"] if rows else 0,
-        "wall_min": rows[-1]["wall_s"] / 60.0 if rows else 0.0,
+        "run": record.path.name,
+        "algo": record.algo,
+        "backend": record.backend,
+        "task": record.task,
+        "seed": record.seed,
+        "num_envs": record.num_envs,
+        "horizon": record.horizon,
+        "planned_epochs": record.planned_epochs,
+        "epochs": record.epochs,
+        "env_steps": record.env_steps,
+        "wall_min": record.wall_s / 60.0,
         "sim_forward_min": total("sim_forward_s"),
         "backward_min": total("backward_s"),
         "update_min": total("update_s"),
         "train_return_last20": sum(returns) / len(returns) if returns else None,
         "eval_initial": ev["initial"]["mean_return"] if ev else None,
-        "eval_final": ev["final"]["mean_return"] if ev else None,
-        "eval_std_over_seeds": ev["final"]["std_over_seeds"] if ev else None,
-        "eval_seeds": ev["seeds"] if ev else None,
-        "final_lambda": rows[-1]["lam"] if rows else None,
+        "eval_final": final("mean_return"),
+        "eval_std_over_seeds": final("std_over_seeds"),
+        "eval_seeds": ev.get("seeds") if ev else None,
+        "final_lambda": rows[-1].get("lam") if rows else None,
         # raw (scales with the loss squared) and scale-free (algorithms/grad_variance.py); runs from before
         # the scale-free statistics have none
         "median_actor_grad_var": _median(rows, "actor_grad_var"),
         "median_actor_grad_nsr": _median(rows, "actor_grad_nsr"),
         "median_actor_grad_cosine": _median(rows, "actor_grad_cosine"),
-        "skipped_actor_updates": sum(bool(r.get("actor_update_skipped")) for r in rows),
+        "skipped_actor_updates": sum(r.get("actor_update_skipped") is True for r in rows),
     }
 
 
@@ -168,12 +169,16 @@ def _iqm_cell(row: dict, col: str) -> str:
     return fmt(row[f"{col}_iqm"]) + interval
 
 
-def write_report(runs: list[Path], out_prefix: str | Path, command: str, plot: bool = True) -> list[Path]:
+def write_report(runs: list[Path], out_prefix: str | Path, command: str, plot: bool = True, stream=None) -> list[Path]:
     """``PREFIX.md`` (both tables), ``PREFIX.csv`` (per run), ``PREFIX_by_algo.csv``, ``PREFIX.png``. A run
-    folder given twice counts once."""
+    folder given twice counts once; what cannot be read is said on ``stream``, one line each."""
     out_prefix = Path(out_prefix)
-    runs = list({Path(r).resolve(): Path(r) for r in runs}.values())
-    summaries = [summarize(r) for r in runs]
+    stream = stream or sys.stdout
+    unique = list({Path(r).resolve(): Path(r) for r in runs}.values())
+    records = [r for r in (load_run(path, stream) for path in unique) if r is not None]
+    if not records:
+        raise RunError("none of the --runs has a usable config.json")
+    summaries = [summarize(r) for r in records]
     md_path, csv_path = write_table(summaries, out_prefix, command)
     agg = aggregate(summaries)
     cols = [*GROUP, "seeds", "env_steps"] + [f"{c}_{k}" for c in AGGREGATED for k in STATISTICS]
@@ -205,32 +210,38 @@ def write_report(runs: list[Path], out_prefix: str | Path, command: str, plot: b
         fh.write("\n".join(md) + "\n")
     paths = [md_path, csv_path, agg_csv]
     if plot:
-        paths.append(plot_curves(runs, out_prefix.parent / f"{out_prefix.name}.png"))
+        curves = plot_curves(records, summaries, out_prefix.parent / f"{out_prefix.name}.png")
+        if curves is None:
+            say(stream, "no run has logged an epoch: no curves")
+        else:
+            paths.append(curves)
     return paths
 
 
-def plot_curves(runs: list[str | Path], out_png: str | Path, smooth: int = 10) -> Path:
+def plot_curves(records: list[RunRecord], summaries: list[dict], out_png: str | Path, smooth: int = 10) -> Path | None:
     """Train return vs env steps and vs wall time, actor-gradient variance and lambda: per table row over
-    its seeds (mean and 95% bootstrap band), or per run where every row has one seed."""
+    its seeds (mean and 95% bootstrap band), or per run where every row has one seed; None when no run has
+    logged an epoch."""
     import pandas as pd
 
     plt, sns = pyplot()
-    groups = {Path(run): tuple(summarize(run)[k] for k in GROUP) for run in runs}
-    varying = [k for k in range(len(GROUP)) if len({g[k] for g in groups.values()}) > 1 or GROUP[k] == "algo"]
+    groups = [tuple(s[k] for k in GROUP) for s in summaries]
+    varying = [k for k in range(len(GROUP)) if len({g[k] for g in groups}) > 1 or GROUP[k] == "algo"]
     frames = []
-    for run in runs:
-        rows = _read_rows(Path(run))
-        if not rows:
+    for record, group in zip(records, groups, strict=True):
+        needed = ("epoch", "env_steps", "wall_s", "train_episode_return", "actor_grad_var", "lam")
+        if not record.epochs or any(c not in record.metrics for c in needed):
             continue
-        df = pd.DataFrame(rows)
-        df["run"] = f"{Path(run).name}"
+        df = record.metrics.copy()
+        df["run"] = record.path.name
         # a curve pools only the seeds of one table row, named by what differs between the rows
-        group = groups[Path(run)]
         df["algo"] = " ".join(group[k] if GROUP[k] == "algo" else f"{GROUP[k]}={group[k]}" for k in varying)
         df["return (smoothed)"] = df["train_episode_return"].astype(float).rolling(smooth, min_periods=1).mean()
         df["wall time (min)"] = df["wall_s"] / 60.0
         df["actor grad variance"] = df["actor_grad_var"].astype(float)
         frames.append(df)
+    if not frames:
+        return None
     data = pd.concat(frames, ignore_index=True)
     # several seeds of one algorithm: one line per algorithm (mean, 95% bootstrap band); else one per run
     hue = "algo" if data.groupby("algo")["run"].nunique().max() > 1 else "run"
