@@ -139,16 +139,38 @@ def run_job_in_this_process(words: list[str], log: str, env: dict, cwd: str | No
     return code
 
 
-def _reachable(address: str) -> None:
-    """Refuse a malformed or unreachable head address in one line (ray.init would retry for minutes)."""
+CONNECT_TIMEOUT_S = 10.0
+# A Ray head's address is its GCS, a gRPC server: it answers the HTTP/2 connection preface with a
+# SETTINGS frame (a 9-byte frame header of type 4). Something else listening there (a web server, a
+# database) does not, and ray.init would retry it for minutes.
+_HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])
+_SETTINGS = 4
+
+
+def _reachable(address: str, timeout: float | None = None) -> None:
+    """Refuse, in one line within ``timeout`` seconds, a head address that is malformed, where nothing
+    listens, or where what listens does not speak gRPC (not a Ray head); ray.init would retry for minutes."""
+    timeout = CONNECT_TIMEOUT_S if timeout is None else timeout
     address = address.removeprefix("ray://")
     host, sep, port = address.rpartition(":")
     if not sep or not host or not port.isdigit():
         raise RunError(f"--address {address}: expected HOST:PORT of a Ray head, e.g. 10.0.0.1:6379")
     try:
-        socket.create_connection((host, int(port)), timeout=10).close()
+        with socket.create_connection((host, int(port)), timeout=timeout) as sock:
+            sock.settimeout(timeout)
+            sock.sendall(_HTTP2_PREFACE)
+            header = b""
+            while len(header) < 9:
+                chunk = sock.recv(9 - len(header))
+                if not chunk:
+                    break
+                header += chunk
+    except TimeoutError:
+        raise RunError(f"--address {address}: no answer within {timeout:g} s; not a Ray head") from None
     except OSError as exc:
         raise RunError(f"--address {address}: no Ray head answers there ({exc.strerror or exc})") from None
+    if len(header) < 9 or header[3] != _SETTINGS:
+        raise RunError(f"--address {address}: something listens there, but not a Ray head (no gRPC answer)")
 
 
 class RayLauncher:

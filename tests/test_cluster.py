@@ -410,3 +410,45 @@ def test_ctrl_c_stops_a_ray_suite_resumably(tmp_path, ray_head):
     for run in runs.iterdir():
         assert [r["epoch"] for r in _rows(run)] == list(range(40)), run.name
         assert (run / "eval.json").is_file()
+
+
+def _listener(answer: bytes | None):
+    """A TCP server on 127.0.0.1 that is not a Ray head: it sends ``answer`` to whoever connects (None:
+    stays silent) and keeps the connection open."""
+    import threading
+
+    server = socket.create_server(("127.0.0.1", 0))
+    held = []
+
+    def serve():
+        conn, _ = server.accept()
+        held.append(conn)
+        if answer is not None:
+            conn.recv(64)
+            conn.sendall(answer)
+
+    threading.Thread(target=serve, daemon=True).start()
+    return server, held, f"127.0.0.1:{server.getsockname()[1]}"
+
+
+@pytest.mark.parametrize(
+    "answer, needle",
+    [(None, "no answer within 1 s"), (b"HTTP/1.0 400 Bad Request\r\n\r\n", "not a Ray head (no gRPC answer)")],
+    ids=["silent", "a web server"],
+)
+def test_an_address_where_no_ray_head_listens_is_refused_in_one_line_within_the_timeout(
+    answer, needle, tmp_path, monkeypatch, capsys
+):
+    pytest.importorskip("ray", reason="the [ray] extra is not installed (tox -e py installs it)")
+    from harness import launchers
+    from harness.cli import main
+
+    monkeypatch.setattr(launchers, "CONNECT_TIMEOUT_S", 1.0)
+    server, held, address = _listener(answer)  # ``held``: the accepted connection, open until the test ends
+    started = time.monotonic()
+    with server:
+        argv = ["bench", "--profile", "smoke", "--launcher", "ray", "--address", address, "--store", str(tmp_path)]
+        code = main(argv)
+    assert held and code == 2 and time.monotonic() - started < 30
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and needle in err, err
