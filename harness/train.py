@@ -460,9 +460,15 @@ def evaluate(
             obs = env.reset()
             first_return = torch.full((n,), float("nan"))
             first_length = torch.zeros(n, dtype=torch.long)
+            # the forward velocity at the start of every step of the first episode: never a reset state's
+            forward_sum, has_forward = torch.zeros(n, dtype=torch.float64), False
             limit = max_steps or env.episode_length
             with torch.no_grad():
                 for _ in range(limit):
+                    velocity = env.task.forward_velocity(env.sim.state)
+                    if velocity is not None:
+                        forward_sum += torch.where(torch.isnan(first_return), velocity.double().cpu(), 0.0)
+                        has_forward = True
                     step = env.step(algo.act(obs, deterministic=True))
                     newly = step.done & torch.isnan(first_return)
                     first_return[newly] = step.episode_return[newly]
@@ -480,6 +486,8 @@ def evaluate(
                     "mean_length": float(first_length.float().mean()),
                 }
             )
+            if has_forward:
+                per_seed[-1]["mean_forward_velocity"] = float((forward_sum / first_length.clamp(min=1)).mean())
             done = k * seeds + i + 1
             elapsed = time.perf_counter() - t0
             line.show(
@@ -493,6 +501,9 @@ def evaluate(
             "std_over_seeds": float(means.std()) if len(means) > 1 else 0.0,
             "per_seed": per_seed,
         }
+        if "mean_forward_velocity" in per_seed[0]:  # m/s along +x, each env's first-episode mean
+            velocity = sum(s["mean_forward_velocity"] for s in per_seed) / len(per_seed)
+            results["initial" if name == INIT_CHECKPOINT else "final"]["mean_forward_velocity"] = velocity
     payload = {
         "num_envs": n,
         "seeds": seeds,

@@ -88,7 +88,12 @@ PRESETS = {
     "bench_kf3000": PhysicsPreset(
         dataclasses.replace(BENCH_PHYSICS, contact_kf=3.0e3),
         {"newton": {"solver": "featherstone"}},
-        about="the bench constants with DiffRL's friction slope kf 3e3, where h-step gradients explode",
+        about="the bench constants with DiffRL's friction slope kf 3e3 (ten times the bench's)",
+    ),
+    "diffrl_contacts": PhysicsPreset(
+        dataclasses.replace(BENCH_PHYSICS, armature=0.0, contact_kd=1.0e4, contact_kf=3.0e3),
+        {"newton": {"solver": "semi_implicit"}},
+        about="bench_semi_implicit with DiffRL's own contact damping and friction slope (kd 1e4, kf 3e3)",
     ),
     "rewarped": PhysicsPreset(
         REWARPED_PHYSICS,

@@ -113,6 +113,13 @@ class Task(ABC):
     def terminated(self, state: SimState, obs: torch.Tensor) -> torch.Tensor:
         """(N,) bool: the episode ends here (no bootstrap)."""
 
+    def forward_velocity(self, state: SimState) -> torch.Tensor | None:
+        """(N,) velocity along world +x in m/s, the direction every task here rewards moving in: the
+        root's centre of mass for a floating base (None for a task without one, unless it says
+        otherwise). Evaluations report its mean over each first episode, which says whether a policy
+        moves forward at all in units that do not depend on the reward's terms."""
+        return state.root_lin_vel[:, 0] if self.layout.floating_base else None
+
 
 def floating_base_pose(height: float, dof_q: tuple[float, ...]) -> tuple[torch.Tensor, torch.Tensor]:
     """Generalized coordinates of a floating-base robot at rest: root at ``(0, 0, height)``, upright,

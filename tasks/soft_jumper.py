@@ -149,5 +149,9 @@ class SoftJumper(Task):
             - self.action_weight * actions.pow(2).sum(-1)
         )
 
+    def forward_velocity(self, state: SimState) -> torch.Tensor:
+        """The centre of mass's velocity along +x (the reward's forward term)."""
+        return self.com(state)[1][:, 0]
+
     def terminated(self, state: SimState, obs: torch.Tensor) -> torch.Tensor:
         return torch.zeros(state.particle_q.shape[0], dtype=torch.bool, device=state.particle_q.device)

@@ -597,3 +597,17 @@ def test_an_evaluation_of_an_earlier_epoch_is_stale(tmp_path):
     (extended / "eval.json").write_text(json.dumps(_eval_payload(5.0, policy_epoch=EPOCHS - 2)))
     assert load_run(extended, log).evaluation is None
     assert f"evaluates epoch {EPOCHS - 2} of {EPOCHS}: stale" in log.getvalue()
+
+
+def test_the_returns_table_gives_the_forward_velocity_over_seeds_where_evaluations_recorded_it(tmp_path):
+    velocities = [0.1, 0.4, 0.2, 3.0]
+    for seed, velocity in enumerate(velocities):
+        run = make_run(tmp_path / "go2", "go2", "newton", "shac", seed, 16, 1.0, [1.0] * EPOCHS)
+        payload = json.loads((run / "eval.json").read_text())
+        payload["final"]["mean_forward_velocity"] = velocity
+        (run / "eval.json").write_text(json.dumps(payload))
+    make_run(tmp_path / "ant", "ant", "newton", "shac", 0, 16, 1.0, [1.0] * EPOCHS)  # an older eval.json
+    table = returns_table([load_run(p) for p in collect_runs(tmp_path)]).set_index("task")
+    assert table.loc["go2", "forward_velocity_iqm"] == pytest.approx(stats.trim_mean(velocities, 0.25))
+    assert table.loc["go2", "forward_velocity_ci_low"] <= 0.3 <= table.loc["go2", "forward_velocity_ci_high"]
+    assert math.isnan(table.loc["ant", "forward_velocity_iqm"])

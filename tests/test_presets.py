@@ -25,8 +25,9 @@ def test_a_preset_sets_constants_engine_settings_and_asset():
 
 
 def test_an_unknown_preset_is_refused_in_one_line_naming_the_choices():
-    with pytest.raises(UnknownPresetError, match="bench, bench_semi_implicit, bench_kf3000, rewarped") as info:
-        make_task("ant", preset="diffrl")
+    choices = "bench, bench_semi_implicit, bench_kf3000, diffrl_contacts, rewarped"
+    with pytest.raises(UnknownPresetError, match=choices) as info:
+        make_task("ant", preset="dflex")
     assert "\n" not in str(info.value)
 
 

@@ -208,6 +208,8 @@ def returns_document(runs: list[RunRecord]) -> Table:
                     ("P(algo > base)", "p_improvement"),
                     ("P 95% CI", lambda r: fmt_ci(r["p_improvement_ci_low"], r["p_improvement_ci_high"])),
                     ("detectable at 80% power", "mde_80"),
+                    ("forward velocity m/s (IQM)", "forward_velocity_iqm"),
+                    ("velocity 95% CI", lambda r: fmt_ci(r["forward_velocity_ci_low"], r["forward_velocity_ci_high"])),
                 ],
                 empty="no run has an eval.json",
             ),
@@ -245,6 +247,10 @@ def returns_document(runs: list[RunRecord]) -> Table:
             "improvement below it is not evidence either way. Power table: the std pooled over every algorithm "
             "of a setting, and the seeds per algorithm at which that test detects +25%, +50% and +100% of the base "
             "algorithms' (shac, sapo) mean return (blank: over 10,000).",
+            "Forward velocity: the final policy's velocity along +x (the root's; the SoftJumper's centre of "
+            "mass), each env's mean over its first episode, averaged over envs and eval seeds; IQM and CI over "
+            "training seeds as for the return. It says whether a policy moves forward at all, whatever the "
+            "reward's other terms pay; n/a for evaluations made before it was recorded.",
             "Runs without eval.json (unfinished) are left out of this table.",
         ],
         _run_commits(evaluated),

@@ -77,6 +77,13 @@ class RunRecord:
         return self.evaluation["final"]["mean_return"] if self.evaluation else None
 
     @property
+    def final_forward_velocity(self) -> float:
+        """The final policy's mean forward velocity (m/s; eval.json's ``mean_forward_velocity``), NaN where
+        the evaluation did not record one."""
+        value = self.evaluation["final"].get("mean_forward_velocity") if self.evaluation else None
+        return math.nan if value is None else float(value)
+
+    @property
     def initial_return(self) -> float | None:
         return self.evaluation["initial"]["mean_return"] if self.evaluation else None
 

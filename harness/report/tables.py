@@ -64,6 +64,8 @@ def returns_table(runs: list[RunRecord]) -> pd.DataFrame:
         better = (
             probability_of_improvement_with_ci([final], [base_final]) if base_final is not None else (math.nan,) * 3
         )
+        velocity = np.array([r.final_forward_velocity for r in members], dtype=float)
+        velocity_iqm = iqm_with_ci(velocity) if np.isfinite(velocity).all() else (math.nan,) * 3
         if base_final is not None and final.size + base_final.size > 2:
             spread = pooled_std([final, base_final])
             mde = minimum_detectable_difference(spread, final.size, base_final.size)
@@ -96,6 +98,9 @@ def returns_table(runs: list[RunRecord]) -> pd.DataFrame:
                 "p_improvement_ci_low": better[1],
                 "p_improvement_ci_high": better[2],
                 "mde_80": mde,
+                "forward_velocity_iqm": velocity_iqm[0],
+                "forward_velocity_ci_low": velocity_iqm[1],
+                "forward_velocity_ci_high": velocity_iqm[2],
             }
         )
     return pd.DataFrame(rows, columns=_RETURNS_COLUMNS)
@@ -127,6 +132,9 @@ _RETURNS_COLUMNS = [
     "p_improvement_ci_low",
     "p_improvement_ci_high",
     "mde_80",
+    "forward_velocity_iqm",
+    "forward_velocity_ci_low",
+    "forward_velocity_ci_high",
 ]
 
 
