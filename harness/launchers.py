@@ -6,6 +6,9 @@ store, so a cluster's results land where a local run's would, in the same folder
 
 * ``LocalLauncher``: one process per job, ``--jobs`` at a time (one per core on a CPU machine: a Warp
   CPU kernel uses one thread). Each job runs in its own session; the suite passes Ctrl-C/SIGTERM on.
+  A suite that dies without passing anything on (SIGKILL, a crash) still takes its jobs down: each gets
+  SIGINT when the suite dies (``PR_SET_PDEATHSIG``, Linux), so a training job checkpoints at its epoch
+  boundary and stops, and running the suite again resumes it; none is left training unseen.
 * ``RayLauncher`` (``--launcher ray [--address HOST:PORT]``; ``pip install 'diffsim-bench[ray]'``): each
   job is a Ray task that asks for one CPU, plus ``--gpus-per-run`` of a GPU when the suite's device is
   CUDA, and runs the command in a child process on whichever node Ray picks. The store must be a path
@@ -18,6 +21,7 @@ store, so a cluster's results land where a local run's would, in the same folder
 
 from __future__ import annotations
 
+import functools
 import os
 import signal
 import socket
@@ -67,7 +71,14 @@ class LocalLauncher:
         fh.write(f"\n$ {' '.join(argv)}\n")
         fh.flush()
         env = {**os.environ, **_job_env()}
-        proc = subprocess.Popen(argv, stdout=fh, stderr=subprocess.STDOUT, env=env, start_new_session=True)
+        proc = subprocess.Popen(
+            argv,
+            stdout=fh,
+            stderr=subprocess.STDOUT,
+            env=env,
+            start_new_session=True,
+            preexec_fn=functools.partial(_signal_on_parent_death, signal.SIGINT, os.getpid()),
+        )
         fh.close()
         return proc
 
@@ -88,16 +99,24 @@ class ChildKilled(RuntimeError):
     """The job's process died of a signal nobody sent on purpose (OOM killer, SIGKILL): Ray retries it."""
 
 
-def _die_with_parent() -> None:  # pragma: no cover - runs in the forked child
+def _signal_on_parent_death(signum: int, parent: int) -> None:  # pragma: no cover - runs in the forked child
+    """In a forked child before exec: have the kernel send ``signum`` when the thread that started it dies.
+
+    Ray's worker threads block SIGINT, and a blocked signal stays blocked across exec, so it is unblocked
+    first, or the job could never be asked to checkpoint and stop. Where prctl is missing (not Linux)
+    the job runs without the guard. A parent already gone before the guard took effect is caught by
+    comparing the parent's pid.
+    """
     import ctypes
 
-    # Ray's worker threads block SIGINT, and a blocked signal stays blocked across exec: unblock it, or
-    # the job could never be asked to checkpoint and stop
     signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
-    libc = ctypes.CDLL(None, use_errno=True)
-    libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG: killed when the Ray worker that started it dies
-    if os.getppid() == 1:
-        os._exit(137)  # the worker died before prctl took effect
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signum)  # 1 = PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != parent:
+        os._exit(128 + signum)
 
 
 def run_job_in_this_process(words: list[str], log: str, env: dict, cwd: str | None, stop_file: str) -> int:
@@ -118,7 +137,7 @@ def run_job_in_this_process(words: list[str], log: str, env: dict, cwd: str | No
             stderr=subprocess.STDOUT,
             env={**os.environ, **env},
             cwd=cwd if cwd and Path(cwd).is_dir() else None,
-            preexec_fn=_die_with_parent,
+            preexec_fn=functools.partial(_signal_on_parent_death, signal.SIGKILL, os.getpid()),
         )
         try:
             while True:

@@ -401,3 +401,43 @@ def test_ctrl_c_stops_the_suite_resumably(tmp_path):
         rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
         assert [r["epoch"] for r in rows] == list(range(60)), run.name
         assert (run / "eval.json").is_file()
+
+
+def test_a_killed_suite_takes_its_jobs_down_resumably(tmp_path):
+    """SIGKILL to the suite, which cannot pass anything on: its jobs still stop at an epoch boundary with a
+    checkpoint instead of training on unseen, and the same command then finishes every run exactly once."""
+    import signal
+    import time
+
+    spec = _write(
+        tmp_path,
+        POINTMASS_SPEC.replace("epochs = 3", "epochs = 100")
+        .replace("seeds = [0, 1]", "seeds = [0]")
+        .replace('algos = ["shac", "shac-tdadpt"]', 'algos = ["shac"]')
+        .replace("horizons = [4, 8]", "horizons = [8]"),
+    )
+    store = tmp_path / "store"
+    runs = store / "pm" / "runs"
+    command = [sys.executable, "-m", "harness", "bench", "--spec", str(spec), "--store", str(store)]
+    proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=_env())
+    deadline = time.time() + 300
+    while time.time() < deadline:
+        metrics = list(runs.glob("*/metrics.jsonl")) if runs.exists() else []
+        if metrics and max(len(m.read_text().splitlines()) for m in metrics) >= 3:
+            break
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=60)
+    deadline = time.time() + 120
+    while any(runs.glob("*/.claim.*")) and time.time() < deadline:  # a job releases its claim as it exits
+        time.sleep(0.2)
+    assert not any(runs.glob("*/.claim.*")), "a job of the killed suite is still running"
+    stopped = [d for d in runs.iterdir() if not (d / "eval.json").exists()]
+    assert stopped, "no job stopped with the suite: it trained on as an orphan or finished before the kill"
+    assert all((d / "checkpoint.pt").is_file() for d in stopped)
+    again = subprocess.run(command, capture_output=True, text=True, env=_env(), timeout=600)
+    assert again.returncode == 0, again.stdout[-2000:] + again.stderr[-2000:]
+    for run in runs.iterdir():
+        rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+        assert [r["epoch"] for r in rows] == list(range(100)), run.name
+        assert (run / "eval.json").is_file()
