@@ -16,10 +16,16 @@ from scipy import stats
 
 from harness.report import write_bench_report
 from harness.report.documents import header_lines
-from harness.report.plots import curve_settings, learning_curve_frame
+from harness.report.plots import curve_settings, learning_curve_frame, plot_returns_vs_h
 from harness.report.records import base_algo, collect_runs, load_run
 from harness.report.stats import iqm_difference_with_ci, minimum_detectable_difference, seeds_needed
-from harness.report.tables import grad_variance_growth_table, grad_variance_table, power_table, returns_table
+from harness.report.tables import (
+    grad_variance_growth_table,
+    grad_variance_table,
+    power_table,
+    returns_table,
+    returns_vs_h_table,
+)
 
 COMMIT = "c0ffee1"
 HEADER = {
@@ -548,7 +554,10 @@ def test_every_plot_exists(suite):
         assert path.is_file() and path.stat().st_size > 1000, path
     # the landscape figure comes from harness.landscape when it imports; else the skip is said
     assert "landscape_ant_newton_shac-tdadpt_h16_s0.png" in names or "skipped plot landscape_" in suite["log"]
-    assert "skipped plot" not in suite["log"].replace("skipped plot landscape_", "")
+    # the suite's horizons have different budgets: no return-vs-h panel (drawn in its own test below)
+    assert "skipped plot returns_vs_h.png: no algorithm has evaluated runs at two horizons" in suite["log"]
+    others = suite["log"].replace("skipped plot landscape_", "").replace("skipped plot returns_vs_h.png", "")
+    assert "skipped plot" not in others
 
 
 def test_empty_inputs_write_tables_and_skip_plots(tmp_path):
@@ -611,3 +620,24 @@ def test_the_returns_table_gives_the_forward_velocity_over_seeds_where_evaluatio
     assert table.loc["go2", "forward_velocity_iqm"] == pytest.approx(stats.trim_mean(velocities, 0.25))
     assert table.loc["go2", "forward_velocity_ci_low"] <= 0.3 <= table.loc["go2", "forward_velocity_ci_high"]
     assert math.isnan(table.loc["ant", "forward_velocity_iqm"])
+
+
+def test_returns_against_h_compare_horizons_at_one_budget_only(tmp_path):
+    """Rows exist only where one (task, backend, algo, N) has evaluated runs at two or more horizons with
+    the same env steps per run (within 2%: epochs are whole numbers); a horizon at another budget is left
+    out, and each row carries the IQM over seeds, its CI and the mean wall minutes per run."""
+    finals = {16: [10.0, 20.0, 30.0], 32: [40.0, 50.0, 60.0]}
+    for horizon, epochs in ((16, 8), (32, 4)):  # 4 envs x 16 x 8 = 4 x 32 x 4 = 512 env steps per run
+        for seed, final in enumerate(finals[horizon]):
+            make_run(tmp_path, "ant", "newton", "sapo", seed, horizon, final, [1.0] * epochs, epochs=epochs)
+    make_run(tmp_path, "ant", "newton", "sapo", 0, 64, 99.0, [1.0] * 4, epochs=4)  # 1,024 env steps: another budget
+    make_run(tmp_path, "ant", "newton", "shac", 0, 16, 5.0, [1.0] * 8, epochs=8)  # one horizon only: no row
+    table = returns_vs_h_table([load_run(p) for p in collect_runs(tmp_path)])
+    assert list(table["horizon"]) == [16, 32] and set(table["algo"]) == {"sapo"}
+    assert list(table["budget"]) == [512, 512] and list(table["epochs"]) == [8, 4]
+    h32 = _row(table, horizon=32)
+    assert h32["seeds"] == 3 and h32["iqm_final"] == pytest.approx(50.0)
+    assert h32["iqm_ci_low"] <= 50.0 <= h32["iqm_ci_high"]
+    assert h32["wall_min_mean"] == pytest.approx(4 * EPOCH_S / 60.0)
+    png = plot_returns_vs_h(table, tmp_path / "returns_vs_h.png")
+    assert png.is_file() and png.stat().st_size > 1000

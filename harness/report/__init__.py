@@ -14,6 +14,7 @@ part writes it as ``NAME_PART.csv`` (with its own ``.provenance.json``) and as a
   95% percentile-bootstrap CI, mean and std, initial return, and the IQM improvement over the base algorithm
   (``shac-tdadpt`` -> ``shac``) with a two-sample bootstrap CI (:func:`returns_table`);
 * ``grad_variance_vs_h`` (+ ``_growth``): the actor-gradient variance against the horizon;
+* ``returns_vs_h``: the final return against the horizon at one budget of env steps per run;
 * ``wall_time``: the time split of every run; ``throughput``: env-steps/s of the throughput checks;
 * ``backends``: one algorithm x task x horizon on every backend side by side;
 * ``sim_to_sim`` (+ ``_mean``): a policy evaluated on another backend than it trained on;
@@ -21,7 +22,7 @@ part writes it as ``NAME_PART.csv`` (with its own ``.provenance.json``) and as a
 * ``checks``: every check file (gradcheck, throughput, crosscheck) in one line each.
 
 Plots (PNG, matplotlib's Agg backend, one figure per file): ``learning_curves_steps``,
-``learning_curves_wall``, ``grad_variance_vs_h``, ``lambda_alpha``, ``wall_time``, ``throughput`` and one
+``learning_curves_wall``, ``grad_variance_vs_h``, ``returns_vs_h``, ``lambda_alpha``, ``wall_time``, ``throughput`` and one
 ``landscape_*.png`` per landscape (``harness.landscape.plot_landscape``, when that module imports).
 A plot without data is skipped (and a stale file of that name removed); ``index.md`` lists what was
 written and what was skipped, and why.

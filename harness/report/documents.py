@@ -26,6 +26,7 @@ from harness.report.tables import (
     landscape_table,
     power_table,
     returns_table,
+    returns_vs_h_table,
     sim_to_sim_mean_table,
     sim_to_sim_table,
     throughput_table,
@@ -357,6 +358,39 @@ def grad_variance_document(runs: list[RunRecord]) -> Table:
     )
 
 
+def returns_vs_h_document(runs: list[RunRecord]) -> Table:
+    """Final return against h at one budget."""
+    evaluated = [r for r in runs if r.evaluation is not None]
+    return Table(
+        "returns_vs_h",
+        "Final evaluation return against the horizon h at one budget",
+        rests_on_runs(evaluated, "evaluated training runs"),
+        [
+            Section(
+                returns_vs_h_table(runs),
+                _key_columns("task", "backend", "algo", "num_envs", "budget", "horizon", "epochs", "seeds")
+                + [
+                    ("IQM final", "iqm_final"),
+                    ("95% CI", lambda r: fmt_ci(r["iqm_ci_low"], r["iqm_ci_high"])),
+                    ("mean ± std", lambda r: f"{fmt(r['mean_final'])} ± {fmt(r['std_final'])}"),
+                    ("wall min per run", "wall_min_mean"),
+                    ("updates skipped %", "skipped_pct"),
+                ],
+                empty="no algorithm has evaluated runs at two horizons with one budget",
+            )
+        ],
+        [
+            "The paper's Fig. 7 (right) at the budget this machine affords: every row of a block spends the "
+            "same env steps per run (budget: N x h x planned epochs; budgets within 2% count as one, since "
+            "epochs are whole numbers), so a longer horizon gets fewer, longer updates. IQM and 95% CI over "
+            "training seeds as in returns.md; wall minutes: training only, the mean over seeds (evaluation "
+            "excluded), on the machine in the header; updates skipped: the share of actor updates whose "
+            "gradient norm passed the skip threshold or was not finite."
+        ],
+        _run_commits(evaluated),
+    )
+
+
 def wall_time_document(runs: list[RunRecord]) -> Table:
     """Wall time per run and its split."""
     trained = [r for r in runs if r.epochs]
@@ -572,6 +606,7 @@ def build_tables(runs: list[RunRecord], checks: list[CheckRecord]) -> list[Table
         returns_document(runs),
         aggregate_document(runs),
         grad_variance_document(runs),
+        returns_vs_h_document(runs),
         wall_time_document(runs),
         throughput_document(checks),
         backends_document(runs),

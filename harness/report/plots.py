@@ -261,6 +261,47 @@ def plot_grad_variance(per_h: pd.DataFrame, path: Path) -> Path:
     return save_figure(fig, path)
 
 
+def plot_returns_vs_h(per_h: pd.DataFrame, path: Path) -> Path:
+    """Final eval return against h at one budget (``returns_vs_h_table``): one panel per (task, backend, N,
+    budget), one line per algorithm, points the IQM over training seeds and bars its 95% CI."""
+    plt, _ = pyplot()
+    if per_h.empty:
+        raise NoPlotData("no algorithm has evaluated runs at two horizons with one budget")
+    setting = ["task", "backend", "num_envs", "budget"]
+    panels = list(dict.fromkeys(zip(*(per_h[c] for c in setting), strict=True)))
+    fig, axes = plt.subplots(1, len(panels), figsize=(max(7.0, 5.6 * len(panels)), 4.2), squeeze=False)
+    palette = _algo_palette(per_h["algo"])
+    for ax, (task, backend, num_envs, budget) in zip(axes[0], panels, strict=True):
+        same = (per_h["task"] == task) & (per_h["backend"] == backend)
+        same &= _same(per_h["num_envs"], num_envs) & _same(per_h["budget"], budget)
+        sub = per_h[same]
+        horizons = sorted(sub["horizon"].unique())
+        algos = [a for a in palette if a in set(sub["algo"])]
+        for i, algo in enumerate(algos):
+            line = sub[sub["algo"] == algo].sort_values("horizon")
+            point = line["iqm_final"].to_numpy(float)
+            low, high = line["iqm_ci_low"].to_numpy(float), line["iqm_ci_high"].to_numpy(float)
+            spread = np.clip(np.vstack([np.nan_to_num(point - low), np.nan_to_num(high - point)]), 0.0, None)
+            shift = 0.6 * (i - (len(algos) - 1) / 2)  # keeps bars at one h apart
+            ax.errorbar(
+                line["horizon"].to_numpy(float) + shift,
+                point,
+                yerr=spread,
+                marker="o",
+                capsize=4,
+                label=algo,
+                color=palette[algo],
+            )
+        ax.set_xticks(horizons, [str(h) for h in horizons])
+        ax.set_title(f"{task} / {backend}, N={fmt(num_envs)}, {fmt(budget)} env steps per run", fontsize="medium")
+        ax.set_xlabel("horizon h (steps)")
+        ax.set_ylabel("final eval return (IQM over seeds)")
+        ax.legend(fontsize="small")
+    fig.suptitle("Final return vs h at one budget (IQM over seeds, bars: 95% CI)")
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
 def _same(column: pd.Series, value) -> pd.Series:
     """Element-wise equality where a missing value equals a missing value (settings of old runs may lack one)."""
     return column.isna() if is_missing(value) else column == value
@@ -459,6 +500,7 @@ PLOT_DESCRIPTIONS = {
     "learning_curves_steps.png": "training return vs env steps, per task x backend at its most common horizon",
     "learning_curves_wall.png": "training return vs wall-clock minutes, same runs",
     "grad_variance_vs_h.png": "raw and scale-free actor-gradient statistics vs h, seeds' 95% CIs, log-log",
+    "returns_vs_h.png": "final eval return vs h at one budget, IQM with 95% CI over training seeds",
     "lambda_alpha.png": "lambda and SAPO's alpha per epoch, per task",
     "wall_time.png": "seconds per epoch split into simulation, backward and updates",
     "throughput.png": "env-steps/s forward and forward+backward per backend x task, log y",

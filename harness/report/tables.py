@@ -259,6 +259,65 @@ def grad_variance_growth_table(runs: list[RunRecord]) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=columns)
 
 
+BUDGET_TOLERANCE = 0.02  # planned env steps per run this close count as one budget (epochs are whole numbers)
+
+
+def _budget_clusters(budgets: list[int]) -> list[list[int]]:
+    """Distinct budgets merged into clusters whose neighbours differ by at most BUDGET_TOLERANCE."""
+    clusters: list[list[int]] = []
+    for budget in sorted(set(budgets)):
+        if clusters and budget <= clusters[-1][-1] * (1 + BUDGET_TOLERANCE):
+            clusters[-1].append(budget)
+        else:
+            clusters.append([budget])
+    return clusters
+
+
+def returns_vs_h_table(runs: list[RunRecord]) -> pd.DataFrame:
+    """Final eval return against h at one budget (the paper's Fig. 7, right): per (task, backend, algo, N),
+    the horizons whose planned env steps per run (N x h x planned epochs) agree within BUDGET_TOLERANCE,
+    where there are at least two. IQM with its 95% CI over training seeds, mean wall minutes per run and
+    the share of actor updates skipped."""
+    evaluated = [r for r in runs if r.evaluation is not None and r.epochs and r.planned_epochs and r.num_envs]
+    settings = group_runs(evaluated, lambda r: (r.task, r.backend, r.algo, r.num_envs))
+    rows = []
+    for (task, backend, algo, num_envs), members in settings.items():
+        budget_of = {id(r): num_envs * r.horizon * r.planned_epochs for r in members}
+        for cluster in _budget_clusters(list(budget_of.values())):
+            inside = [r for r in members if budget_of[id(r)] in cluster]
+            by_h = {key[0]: at for key, at in group_runs(inside, lambda r: (r.horizon,)).items()}
+            if len(by_h) < 2:
+                continue
+            for horizon in sorted(by_h):
+                at_h = by_h[horizon]
+                final = np.array([r.final_return for r in at_h], dtype=float)
+                point, low, high = iqm_with_ci(final)
+                rows.append(
+                    {
+                        "task": task,
+                        "backend": backend,
+                        "algo": algo,
+                        "num_envs": num_envs,
+                        "budget": value_or_range(cluster),
+                        "horizon": horizon,
+                        "epochs": value_or_range(r.planned_epochs for r in at_h),
+                        "seeds": len(at_h),
+                        "iqm_final": point,
+                        "iqm_ci_low": low,
+                        "iqm_ci_high": high,
+                        "mean_final": float(final.mean()),
+                        "std_final": sample_std(final),
+                        "wall_min_mean": float(np.mean([r.wall_s for r in at_h])) / 60.0,
+                        "skipped_pct": 100.0 * float(np.nanmean([_skipped_fraction(r) for r in at_h])),
+                    }
+                )
+    columns = [
+        *("task", "backend", "algo", "num_envs", "budget", "horizon", "epochs", "seeds"),
+        *("iqm_final", "iqm_ci_low", "iqm_ci_high", "mean_final", "std_final", "wall_min_mean", "skipped_pct"),
+    ]
+    return pd.DataFrame(rows, columns=columns)
+
+
 def time_split(run: RunRecord) -> dict[str, float]:
     """Seconds of each TIME_PARTS stem summed over the run's epochs.
 
