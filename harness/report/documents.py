@@ -317,6 +317,7 @@ def grad_variance_document(runs: list[RunRecord]) -> Table:
                 per_h,
                 _key_columns("task", "backend", "algo", "num_envs", "epochs", "horizon", "seeds")
                 + [
+                    ("updates skipped %", "skipped_pct"),
                     ("raw: seeds' gmean [95% CI]", with_ci("var")),
                     ("raw: pooled median", "median"),
                     ("raw: Q1", "q1"),
@@ -352,7 +353,10 @@ def grad_variance_document(runs: list[RunRecord]) -> Table:
             "the seeds' geometric means at the longest h to the shortest (and to h 32), with an unpaired "
             "bootstrap CI; 'pooled medians' is the same ratio of pooled medians. A row pools only runs of one "
             "setting (N envs, planned epochs). Runs from before the scale-free statistic have no NSR "
-            "(NSR: seeds counts the runs that logged it)."
+            "(NSR: seeds counts the runs that logged it). Updates skipped: the share of actor updates whose "
+            "gradient norm passed the skip threshold or was not finite; their statistics are not logged, so "
+            "where many are skipped the row describes only the updates that were taken, and understates the "
+            "noise."
         ],
         _run_commits(trained),
     )

@@ -197,6 +197,7 @@ def grad_variance_table(runs: list[RunRecord]) -> pd.DataFrame:
             "epochs": planned,
             "horizon": horizon,
             "seeds": len(members),
+            "skipped_pct": skipped_pct(members),
         }
         for metric, stem, _ in GRAD_STATISTICS:
             pooled = np.concatenate([metric_column(r.metrics, metric).to_numpy(dtype=float) for r in members])
@@ -210,7 +211,7 @@ def grad_variance_table(runs: list[RunRecord]) -> pd.DataFrame:
             row |= {f"{stem}_seeds": int(per_seed.size), f"{stem}_gmean": gmean}
             row |= {f"{stem}_ci_low": low, f"{stem}_ci_high": high}
         rows.append(row)
-    columns = ["task", "backend", "algo", "num_envs", "epochs", "horizon", "seeds"]
+    columns = ["task", "backend", "algo", "num_envs", "epochs", "horizon", "seeds", "skipped_pct"]
     for _, stem, _ in GRAD_STATISTICS:
         prefix = "" if stem == "var" else f"{stem}_"
         columns += [f"{prefix}{c}" for c in ("values", "median", "q1", "q3")]
@@ -308,7 +309,7 @@ def returns_vs_h_table(runs: list[RunRecord]) -> pd.DataFrame:
                         "mean_final": float(final.mean()),
                         "std_final": sample_std(final),
                         "wall_min_mean": float(np.mean([r.wall_s for r in at_h])) / 60.0,
-                        "skipped_pct": 100.0 * float(np.nanmean([_skipped_fraction(r) for r in at_h])),
+                        "skipped_pct": skipped_pct(at_h),
                     }
                 )
     columns = [
@@ -441,6 +442,12 @@ def _skipped_fraction(run: RunRecord) -> float:
     return float(column.astype(float).mean()) if len(column) and column.notna().all() else math.nan
 
 
+def skipped_pct(members: list[RunRecord]) -> float:
+    """The mean over runs of the percentage of actor updates skipped; NaN when no run logged it."""
+    fractions = [f for f in (_skipped_fraction(r) for r in members) if not math.isnan(f)]
+    return 100.0 * float(np.mean(fractions)) if fractions else math.nan
+
+
 def backends_table(runs: list[RunRecord]) -> pd.DataFrame:
     """One row per (task, algo, horizon, num_envs, planned epochs) trained on at least 2 backends, columns
     ``BACKEND_MEASURE`` per backend.
@@ -468,7 +475,7 @@ def backends_table(runs: list[RunRecord]) -> pd.DataFrame:
                 "env_steps": value_or_range(r.env_steps for r in members),
                 "iqm_final": iqm(evaluated),
                 "gain_mean": float(np.mean(gains)) if gains else math.nan,
-                "skipped_pct": 100.0 * float(np.nanmean([_skipped_fraction(r) for r in members])),
+                "skipped_pct": skipped_pct(members),
                 "grad_norm_median": float(np.median(norms)) if norms.size else math.nan,
                 "wall_min_mean": float(np.mean([r.wall_s for r in members])) / 60.0,
                 "s_per_epoch_mean": float(np.mean([r.wall_s / r.epochs for r in members])),
