@@ -339,6 +339,16 @@ def run_suite(
     return _finish(data, spec_path, store, all_jobs, command, stream)
 
 
+def shown_path(path: Path) -> str:
+    """A spec's path as results show it: relative to the working directory or the repository where it
+    lies inside one (``harness/profiles/standard.toml``), so no machine's folders end up in a result."""
+    resolved = Path(path).resolve()
+    for base in (Path.cwd().resolve(), Path(__file__).resolve().parents[1]):
+        if resolved.is_relative_to(base):
+            return str(resolved.relative_to(base))
+    return str(path)
+
+
 def _finish(data: dict, spec_path: Path, store: Path, jobs: list[Job], command: str | None, stream) -> int:
     from harness.report import write_bench_report
     from harness.results import provenance
@@ -347,7 +357,7 @@ def _finish(data: dict, spec_path: Path, store: Path, jobs: list[Job], command: 
     runs = [j.run_dir for j in jobs if j.kind == "train" and (j.run_dir / "config.json").is_file()]
     checks = [j.output for j in jobs if j.kind in CHECK_KINDS and j.output.is_file()]
     out_dir = store
-    header = {**provenance(command), "profile": name, "spec": str(spec_path)}
+    header = {**provenance(command), "profile": name, "spec": shown_path(spec_path)}
     written = write_bench_report(runs, checks, out_dir, header)
     failed = [j for j in jobs if j.state in ("failed", "skipped")]
     missing = [j for j in jobs if j.state == "pending"]
@@ -355,7 +365,7 @@ def _finish(data: dict, spec_path: Path, store: Path, jobs: list[Job], command: 
 
     status = {
         "profile": name,
-        "spec": str(spec_path),
+        "spec": shown_path(spec_path),
         "jobs": [
             {"label": j.label, "kind": j.kind, "state": j.state, "output": str(j.output), "command": " ".join(j.argv)}
             for j in jobs

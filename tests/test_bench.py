@@ -441,3 +441,14 @@ def test_a_killed_suite_takes_its_jobs_down_resumably(tmp_path):
         rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
         assert [r["epoch"] for r in rows] == list(range(100)), run.name
         assert (run / "eval.json").is_file()
+
+
+def test_results_show_a_spec_inside_the_repository_by_its_relative_path(tmp_path, monkeypatch):
+    from harness.runner import shown_path
+
+    profile = Path(__file__).resolve().parents[1] / "harness" / "profiles" / "standard.toml"
+    monkeypatch.chdir(tmp_path)
+    assert shown_path(profile) == str(Path("harness") / "profiles" / "standard.toml")
+    assert shown_path(tmp_path / "mine.toml") == "mine.toml"
+    elsewhere = tmp_path.parent / "elsewhere.toml"
+    assert shown_path(elsewhere) == str(elsewhere)
