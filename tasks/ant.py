@@ -14,8 +14,12 @@ Physics presets (``--preset``; docs/physics.md compares them):
 * ``bench_semi_implicit``: the same constants on Newton's semi-implicit solver (maximal coordinates,
   joints held by penalty springs) with no armature, which that solver cannot represent. About 5x
   the throughput; its joints stretch under load, so its physics is not MuJoCo's.
-* ``bench_kf3000``: the bench constants with DiffRL's own friction slope, kf 3e3: where the h-step
-  return's gradients blow up in contact (docs/gradient-statistics.md), kept to measure that.
+* ``bench_kf3000``: the bench constants with DiffRL's own friction slope, kf 3e3, kept to compare
+  training there; on Featherstone its gradients stay sound (docs/gradient-statistics.md).
+* ``diffrl_contacts``: ``bench_semi_implicit`` with DiffRL's own contact damping and friction slope
+  (kd 1e4, kf 3e3), integrated semi-implicitly as DiffRL's dflex does: the setting where the actor
+  gradients explode in training, with the h-step and the TD-lambda return alike
+  (docs/gradient-statistics.md).
 * ``rewarped``: Rewarped 1.3.3's ``AntDflex``, the paper's simulator, constant by constant:
   Featherstone; the contact constants of an Ant shape (ke 4e3, kd 1e3, kf 3e2, mu 0.75) averaged with
   Rewarped's ground plane (ke 1e5, kd 1e3, kf 1e3, mu 0.5), as its contact kernel does; limits ke 1e3 /
