@@ -496,14 +496,14 @@ def evaluate(
                 final=done == total,
             )
         means = torch.tensor([s["mean_return"] for s in per_seed])
-        results["initial" if name == INIT_CHECKPOINT else "final"] = {
+        block = {
             "mean_return": float(means.mean()),
             "std_over_seeds": float(means.std()) if len(means) > 1 else 0.0,
             "per_seed": per_seed,
         }
         if "mean_forward_velocity" in per_seed[0]:  # m/s along +x, each env's first-episode mean
-            velocity = sum(s["mean_forward_velocity"] for s in per_seed) / len(per_seed)
-            results["initial" if name == INIT_CHECKPOINT else "final"]["mean_forward_velocity"] = velocity
+            block["mean_forward_velocity"] = sum(s["mean_forward_velocity"] for s in per_seed) / len(per_seed)
+        results["initial" if name == INIT_CHECKPOINT else "final"] = block
     payload = {
         "num_envs": n,
         "seeds": seeds,
