@@ -24,7 +24,6 @@ from harness.throughput import forward_rate, measure
 from tasks import make_task
 
 DEFAULT_ENVS = (1, 4, 16, 64, 256)
-PASSES = (("forward_steps_per_s", "forward"), ("forward_backward_steps_per_s", "forward+backward"))
 FIELDS = ("backend", "task", "num_envs", "horizon", "forward_steps_per_s", "forward_backward_steps_per_s", "note")
 
 
@@ -106,35 +105,10 @@ def read_csv(path: str | Path) -> list[dict]:
 
 
 def plot(csv_paths: list[str | Path], out_png: str | Path, title: str = "") -> Path:
-    """Log-log env-steps/s vs num_envs: one colour per backend x task, solid forward, dashed with gradients."""
-    import pandas as pd
+    """The log-log plot (:func:`harness.report.plots.plot_scaling`) of the rows of one or more CSVs."""
+    from harness.report.plots import plot_scaling
 
-    from harness.report.plots import pyplot, save_figure
-
-    plt, sns = pyplot()
-
-    records = []
-    for path in csv_paths:
-        for row in read_csv(path):
-            for key, label in PASSES:
-                if row[key] is not None:
-                    records.append(
-                        {
-                            "num envs": row["num_envs"],
-                            "env-steps/s": row[key],
-                            "backend / task": f"{row['backend']} / {row['task']}",
-                            "pass": label,
-                        }
-                    )
-    data = pd.DataFrame(records)
-    fig, ax = plt.subplots(figsize=(10, 5.5))
-    sns.lineplot(data=data, x="num envs", y="env-steps/s", hue="backend / task", style="pass", markers=True, ax=ax)
-    sns.move_legend(ax, "upper left", bbox_to_anchor=(1.01, 1.0))  # beside the axes: inside, it hid curves
-    ax.set_xscale("log", base=2)
-    ax.set_yscale("log")
-    ax.set_title(title or "throughput vs number of envs (log-log)")
-    fig.tight_layout()
-    return save_figure(fig, out_png)
+    return plot_scaling([row for path in csv_paths for row in read_csv(path)], Path(out_png), title)
 
 
 def write(rows: list[dict], out_prefix: str | Path, command: str, provenance: dict) -> list[Path]:

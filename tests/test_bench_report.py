@@ -556,7 +556,10 @@ def test_every_plot_exists(suite):
     assert "landscape_ant_newton_shac-tdadpt_h16_s0.png" in names or "skipped plot landscape_" in suite["log"]
     # the suite's horizons have different budgets: no return-vs-h panel (drawn in its own test below)
     assert "skipped plot returns_vs_h.png: no algorithm has evaluated runs at two horizons" in suite["log"]
+    # nor a scaling check (the scaling figure is drawn in tests/test_performance_tools.py)
+    assert "skipped plot scaling.png: no scaling check" in suite["log"]
     others = suite["log"].replace("skipped plot landscape_", "").replace("skipped plot returns_vs_h.png", "")
+    others = others.replace("skipped plot scaling.png", "")
     assert "skipped plot" not in others
 
 

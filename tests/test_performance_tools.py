@@ -45,6 +45,18 @@ def test_scaling_writes_csv_json_and_plot_and_skips_what_would_take_too_long(tmp
     assert main(["scaling-plot", "--csv", *csvs, "--out", str(both)]) == 0
     assert both.stat().st_size > 0
 
+    # the bench report draws every scaling check's curves in one figure; without one it says so
+    from harness.report import write_bench_report
+    from harness.results import provenance
+
+    checks = [out.with_suffix(".json"), tight.with_suffix(".json")]
+    written = write_bench_report([], checks, tmp_path / "report", provenance() | {"profile": "t"})
+    assert (tmp_path / "report" / "scaling.png") in written
+    assert "`scaling.png`" in (tmp_path / "report" / "index.md").read_text()
+    write_bench_report([], [], tmp_path / "report", provenance() | {"profile": "t"})
+    assert not (tmp_path / "report" / "scaling.png").exists()
+    assert "scaling.png: no scaling check" in (tmp_path / "report" / "index.md").read_text()
+
 
 @pytest.mark.parametrize(
     "args, needle",

@@ -476,6 +476,44 @@ def plot_throughput(table: pd.DataFrame, path: Path) -> Path:
     return save_figure(grid.figure, path)
 
 
+SCALING_PASSES = (("forward_steps_per_s", "forward"), ("forward_backward_steps_per_s", "forward+backward"))
+
+
+def plot_scaling(rows: list[dict], path: Path, title: str = "") -> Path:
+    """Log-log env-steps/s against the number of envs (``scaling`` rows, :mod:`harness.scaling`): one colour
+    per backend x task, solid forward, dashed with gradients; counts without a rate (skipped) are left out."""
+    points = [
+        {
+            "num envs": row["num_envs"],
+            "env-steps/s": float(row[key]),
+            "backend / task": f"{row['backend']} / {row['task']}",
+            "pass": label,
+        }
+        for row in rows
+        for key, label in SCALING_PASSES
+        if row.get(key)
+    ]
+    if not points:
+        raise NoPlotData("no scaling check")
+    plt, sns = pyplot()
+    fig, ax = plt.subplots(figsize=(10, 5.5))
+    sns.lineplot(
+        data=pd.DataFrame(points),
+        x="num envs",
+        y="env-steps/s",
+        hue="backend / task",
+        style="pass",
+        markers=True,
+        ax=ax,
+    )
+    sns.move_legend(ax, "upper left", bbox_to_anchor=(1.01, 1.0))  # beside the axes: inside, it hid curves
+    ax.set_xscale("log", base=2)
+    ax.set_yscale("log")
+    ax.set_title(title or "throughput vs number of envs (scaling checks, log-log)")
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
 def plot_landscapes(runs: list[RunRecord], out_dir: Path) -> tuple[list[Path], list[str]]:
     """One PNG per landscape.json through ``harness.landscape.plot_landscape`` when that module imports."""
     landscapes = [r for r in runs if r.landscape is not None]
@@ -504,5 +542,6 @@ PLOT_DESCRIPTIONS = {
     "lambda_alpha.png": "lambda and SAPO's alpha per epoch, per task",
     "wall_time.png": "seconds per epoch split into simulation, backward and updates",
     "throughput.png": "env-steps/s forward and forward+backward per backend x task, log y",
+    "scaling.png": "env-steps/s forward and forward+backward against the number of envs, log-log",
     "performance_profile.png": "rliable performance profiles of normalised scores across tasks, per backend",
 }

@@ -17,6 +17,7 @@ from harness.report.plots import (
     plot_landscapes,
     plot_learning_curves,
     plot_returns_vs_h,
+    plot_scaling,
     plot_throughput,
     plot_wall_time,
     pyplot,
@@ -58,6 +59,7 @@ def write_bench_report(runs: list[Path], checks: list[Path], out_dir: Path, head
         ("lambda_alpha.png", lambda p: plot_lambda_alpha(records, p)),
         ("wall_time.png", lambda p: plot_wall_time(main["wall_time"], p)),
         ("throughput.png", lambda p: plot_throughput(main["throughput"], p)),
+        ("scaling.png", lambda p: plot_scaling(scaling_rows(check_records), p)),
         ("performance_profile.png", lambda p: plot_performance_profiles(records, p)),
     ]
     plotted, skipped = [], []
@@ -82,6 +84,11 @@ def write_bench_report(runs: list[Path], checks: list[Path], out_dir: Path, head
     headline = headline_lines(tables, records, plotted)
     written.append(write_index(tables, plotted, skipped, out_dir, header, headline))
     return written
+
+
+def scaling_rows(checks) -> list[dict]:
+    """Every env count of every ``scaling`` check, in file order."""
+    return [row for check in checks if check.kind == "scaling" for row in check.result.get("rows", [])]
 
 
 def copy_filmstrips(records, out_dir: Path) -> list[Path]:
