@@ -16,8 +16,14 @@ def _pointmass_or_skip():
         pytest.skip("the test plugin is not installed here (tox -e py installs it)")
 
 
-def test_scaling_writes_csv_json_and_plot_and_skips_what_would_take_too_long(tmp_path, capsys):
+def test_scaling_writes_csv_json_and_plot_and_skips_what_would_take_too_long(tmp_path, capsys, monkeypatch):
     _pointmass_or_skip()
+    # without --out it prints its table and writes nothing, as every measuring verb
+    monkeypatch.chdir(tmp_path)
+    args = ["scaling", "--backend", "pointmass", "--task", "pointmass", "--envs", "1", "2"]
+    assert main([*args, "--horizon", "2", "--windows", "1"]) == 0
+    assert "pointmass,pointmass,2,2," in capsys.readouterr().out
+    assert not list(tmp_path.iterdir())
     out = tmp_path / "scaling_pm"
     args = ["scaling", "--backend", "pointmass", "--task", "pointmass", "--envs", "1", "2", "4"]
     assert main([*args, "--horizon", "2", "--windows", "1", "--out", str(out)]) == 0

@@ -219,7 +219,7 @@ VERB_HELP: dict[str, dict[str, str]] = {
     "scaling": {
         "horizon": "env steps per timed window",
         "windows": "timed windows per env count (the best is kept)",
-        "out": "prefix of the .csv, .png and .json written",
+        "out": "prefix of the .csv, .png and .json written (without it: the table is printed, nothing written)",
     },
     "scaling-plot": {"out": "the plot to write (.png)"},
     "landscape": {"num_envs": "envs of the window whose losses are mapped"},
@@ -493,7 +493,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="smoke (tox -e bench), standard (results/), perf (speed), protocol (the paper's Ant protocol) "
         "or paper (a cluster's worth)",
     )
-    p.add_argument("--spec", help="a TOML spec of your own (format: harness/bench.py and README)")
+    p.add_argument("--spec", help="a TOML spec of your own (format: docs/suite.md)")
     p.add_argument(
         "--store",
         default="results/bench",

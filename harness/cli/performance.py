@@ -148,15 +148,15 @@ def cmd_fd_schemes(args) -> int:
 
 def cmd_scaling(args) -> int:
     from harness.results import provenance, write_check
-    from harness.scaling import scaling, write
+    from harness.scaling import scaling, to_csv, write
 
     _validate_names(args.backend, args.task)
     _check_device(args.device)
     if sorted(args.envs) != list(args.envs) or len(set(args.envs)) != len(args.envs):
         raise BadInput(f"--envs must be distinct and increasing, got {args.envs}")
-    suffix = ("" if args.device == "cpu" else "_cuda") + ("_forward" if args.forward_only else "")
-    out = out_stem(args.out) if args.out else f"results/scaling_{args.backend}_{args.task}{suffix}"
-    _check_output_file(out + ".csv")
+    out = out_stem(args.out) if args.out else None  # without --out, as every measuring verb: print, write nothing
+    if out:
+        _check_output_file(out + ".csv")
     _check_memory(
         args.backend, args.task, args.envs[-1], 0 if args.forward_only else args.horizon, args.device, "--envs"
     )
@@ -174,6 +174,9 @@ def cmd_scaling(args) -> int:
         forward_only=args.forward_only,
     )
     prov = provenance()
+    if not out:
+        print(to_csv(rows, _command(), prov), end="")
+        return 0
     for path in write(rows, out, _command(), prov):
         print(f"wrote {path}")
     result = {"backend": args.backend, "task": args.task, "rows": rows}
