@@ -140,6 +140,34 @@ def test_curves_are_written_atomically(runs, tmp_path):
     assert sorted(p.name for p in png.parent.iterdir()) == ["cmp.csv", "cmp.md", "cmp.png", "cmp_by_algo.csv"]
 
 
+def _drawn_panels(records, monkeypatch, tmp_path) -> dict[str, int]:
+    """plot_curves' panels as {title: lines drawn}, the figure caught before it is saved."""
+    from harness.report import compare
+    from harness.report.records import load_run
+
+    caught = {}
+    monkeypatch.setattr(compare, "save_figure", lambda fig, path: caught.setdefault("fig", fig) and Path(path))
+    loaded = [load_run(r) for r in records]
+    compare.plot_curves(loaded, [summarize(r) for r in loaded], tmp_path / "curves.png")
+    return {ax.get_title(): len(ax.get_lines()) for ax in caught["fig"].axes}
+
+
+def test_curves_draw_the_raw_variance_beside_the_scale_free_ratio_and_name_each(runs, monkeypatch, tmp_path):
+    # runs from before the scale-free statistic: its panel is there, named, and empty
+    panels = _drawn_panels(runs, monkeypatch, tmp_path)
+    raw = "raw actor-gradient variance (K groups; scales with the loss squared)"
+    nsr = "noise-to-signal ratio (scale-free)"
+    assert panels[raw] > 0 and panels[nsr] == 0
+    for run in runs:  # now every epoch logs the ratio too (inf: unresolved, drawn as a gap)
+        path = run / "metrics.jsonl"
+        rows = [json.loads(line) for line in path.read_text().splitlines()]
+        for i, row in enumerate(rows):
+            row["actor_grad_nsr"] = math.inf if i == 0 else 0.5 + i
+        path.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    panels = _drawn_panels(runs, monkeypatch, tmp_path)
+    assert panels[raw] > 0 and panels[nsr] > 0
+
+
 def test_a_run_given_twice_counts_once(runs, tmp_path):
     out = tmp_path / "twice"
     write_report([runs[0], *runs], out, "cmd", plot=False)

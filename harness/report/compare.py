@@ -219,9 +219,10 @@ def write_report(runs: list[Path], out_prefix: str | Path, command: str, plot: b
 
 
 def plot_curves(records: list[RunRecord], summaries: list[dict], out_png: str | Path, smooth: int = 10) -> Path | None:
-    """Train return vs env steps and vs wall time, actor-gradient variance and lambda: per table row over
-    its seeds (mean and 95% bootstrap band), or per run where every row has one seed; None when no run has
-    logged an epoch."""
+    """Train return vs env steps and vs wall time, the actor gradient's raw variance and its scale-free
+    noise-to-signal ratio, and lambda: per table row over its seeds (mean and 95% bootstrap band), or per
+    run where every row has one seed; None when no run has logged an epoch. Runs from before the
+    scale-free statistic leave its panel empty."""
     import pandas as pd
 
     plt, sns = pyplot()
@@ -239,6 +240,9 @@ def plot_curves(records: list[RunRecord], summaries: list[dict], out_png: str | 
         df["return (smoothed)"] = df["train_episode_return"].astype(float).rolling(smooth, min_periods=1).mean()
         df["wall time (min)"] = df["wall_s"] / 60.0
         df["actor grad variance"] = df["actor_grad_var"].astype(float)
+        nsr = df["actor_grad_nsr"] if "actor_grad_nsr" in df else float("nan")
+        # an unresolved ratio (+inf) has no place on a log axis: drawn as a gap, as a skipped update is
+        df["actor grad NSR"] = pd.Series(nsr, index=df.index, dtype=float).replace(float("inf"), float("nan"))
         frames.append(df)
     if not frames:
         return None
@@ -246,15 +250,20 @@ def plot_curves(records: list[RunRecord], summaries: list[dict], out_png: str | 
     # several seeds of one algorithm: one line per algorithm (mean, 95% bootstrap band); else one per run
     hue = "algo" if data.groupby("algo")["run"].nunique().max() > 1 else "run"
     band = {"errorbar": ("ci", 95), "n_boot": CURVE_BOOTSTRAP, "seed": BOOTSTRAP_SEED}
-    fig, axes = plt.subplots(1, 4, figsize=(22, 4.5))
+    fig, axes = plt.subplots(1, 5, figsize=(27, 4.5))
     sns.lineplot(data=data, x="env_steps", y="return (smoothed)", hue=hue, ax=axes[0], **band)
     sns.lineplot(data=data, x="epoch", y="wall time (min)", hue=hue, ax=axes[1], legend=False, **band)
-    sns.lineplot(data=data, x="epoch", y="actor grad variance", hue=hue, ax=axes[2], legend=False, **band)
-    axes[2].set_yscale("log")
-    sns.lineplot(data=data, x="epoch", y="lam", hue=hue, ax=axes[3], legend=False, **band)
+    for ax, column in ((axes[2], "actor grad variance"), (axes[3], "actor grad NSR")):
+        if data[column].notna().any():
+            sns.lineplot(data=data, x="epoch", y=column, hue=hue, ax=ax, legend=False, **band)
+            ax.set_yscale("log")
+        else:
+            ax.text(0.5, 0.5, "not logged by these runs", ha="center", va="center", transform=ax.transAxes)
+    sns.lineplot(data=data, x="epoch", y="lam", hue=hue, ax=axes[4], legend=False, **band)
     axes[0].set_title("train episode return vs env steps")
     axes[1].set_title("wall time")
-    axes[2].set_title("actor-gradient variance (K groups)")
-    axes[3].set_title("lambda")
+    axes[2].set_title("raw actor-gradient variance (K groups; scales with the loss squared)")
+    axes[3].set_title("noise-to-signal ratio (scale-free)")
+    axes[4].set_title("lambda")
     fig.tight_layout()
     return save_figure(fig, out_png)
