@@ -198,7 +198,15 @@ def suite(tmp_path_factory):
         ),
         (
             "gradcheck_ant_newton_2.json",
-            {"kind": "gradcheck", "result": gradcheck, "provenance": {"git_commit": "abc"}},
+            {
+                "kind": "gradcheck",
+                "result": gradcheck,
+                "provenance": {
+                    "git_commit": "abc",
+                    "command": "python -m harness gradcheck --backend newton --task ant --preset rewarped "
+                    "--backend-option fd_scheme=forward --out x.json",
+                },
+            },
         ),
         ("crosscheck_ant_newton-mujoco_warp_3.json", {"kind": "crosscheck", "result": crosscheck}),
         ("parity_ant_newton-mujoco_warp_4.json", {"result": crosscheck}),  # no kind: skipped with one line
@@ -518,6 +526,10 @@ def test_throughput_backends_sim_to_sim_landscape_checks(suite):
     checks = pd.read_csv(out / "checks.csv")
     assert set(checks["kind"]) == {"throughput", "gradcheck", "crosscheck"}
     assert bool(_row(checks, kind="gradcheck")["passed"])
+    # the settings a check ran at come from its command; none recorded reads as the defaults
+    assert _row(checks, kind="gradcheck")["settings"] == "preset=rewarped, fd_scheme=forward"
+    assert pd.isna(_row(checks, kind="throughput")["settings"])
+    assert "| preset=rewarped, fd_scheme=forward |" in (out / "checks.md").read_text()
     assert "min cosine 0.999" in _row(checks, kind="crosscheck")["summary"]
     assert "never_written.json" in suite["log"]
     assert "skipped check" in suite["log"] and "parity_ant_newton-mujoco_warp_4.json" in suite["log"]

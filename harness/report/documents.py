@@ -589,6 +589,7 @@ def checks_document(checks: list[CheckRecord]) -> Table:
                     ("kind", "kind"),
                     ("task", "task"),
                     ("backend", "backend"),
+                    ("settings", lambda r: r["settings"] if isinstance(r["settings"], str) else "defaults"),
                     ("passed", lambda r: fmt_verdict(r["passed"])),
                     ("key numbers", "summary"),
                     ("made (UTC)", "created_utc"),
@@ -598,7 +599,8 @@ def checks_document(checks: list[CheckRecord]) -> Table:
         ],
         [
             "passed: the check's own verdict where it gives one (gradcheck against its tolerance); crosschecks "
-            "report agreement numbers without a verdict (n/a)."
+            "report agreement numbers without a verdict (n/a). settings: the preset and backend options the "
+            "check's command named (defaults: none named)."
         ],
         commit_counts(c.provenance.get("git_commit") for c in checks),
     )

@@ -703,8 +703,27 @@ def _check_backends(check: CheckRecord) -> str | None:
     return ", ".join(names) or None
 
 
+def check_settings(check: CheckRecord) -> str | None:
+    """What the check ran at besides the defaults: its ``--preset`` and ``--backend-option``s, read from
+    the command it recorded (the checks' results do not all carry them), e.g. ``preset=rewarped`` or
+    ``fd_scheme=forward, fd_eps_state=2e-3``; None at the defaults."""
+    import shlex
+
+    try:
+        words = shlex.split(str(check.provenance.get("command") or ""))
+    except ValueError:
+        return None
+    named = [
+        f"preset={value}" if flag == "--preset" else value
+        for flag, value in zip(words, words[1:], strict=False)
+        if flag in ("--preset", "--backend-option")
+    ]
+    return ", ".join(named) or None
+
+
 def checks_table(checks: list[CheckRecord]) -> pd.DataFrame:
-    """Every check file in one line: kind, task, backend(s), pass/fail where the check decides one, key numbers."""
+    """Every check file in one line: kind, task, backend(s), the settings it ran at, pass/fail where the
+    check decides one, key numbers."""
     rows = []
     for check in sorted(checks, key=lambda c: (c.kind, str(c.result.get("task")), c.path.name)):
         passed = check.result.get("passed", check.result.get("ok"))
@@ -714,11 +733,12 @@ def checks_table(checks: list[CheckRecord]) -> pd.DataFrame:
                 "kind": check.kind,
                 "task": check.result.get("task"),
                 "backend": _check_backends(check),
+                "settings": check_settings(check),
                 "passed": passed if isinstance(passed, bool) else None,
                 "summary": check_summary(check),
                 "created_utc": check.provenance.get("created_utc"),
                 "commit": check.provenance.get("git_commit"),
             }
         )
-    columns = ["file", "kind", "task", "backend", "passed", "summary", "created_utc", "commit"]
+    columns = ["file", "kind", "task", "backend", "settings", "passed", "summary", "created_utc", "commit"]
     return pd.DataFrame(rows, columns=columns)
