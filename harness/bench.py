@@ -188,11 +188,10 @@ def _preset_suffix(args: list[str]) -> str:
 def _check_physics(args: list[str]) -> tuple[str | None, dict]:
     """The preset and adapter options a check's arguments name (``--preset P``, ``--backend-option
     K=V``): its gradients are made with them, so its address carries their gradient settings."""
-    from harness.cli.parser import parse_option
+    from harness.cli.parser import parse_option, physics_words
 
-    preset = args[args.index("--preset") + 1] if "--preset" in args[:-1] else None
-    options = dict(parse_option(args[k + 1]) for k, word in enumerate(args[:-1]) if word == "--backend-option")
-    return preset, options
+    preset, options = physics_words(args)
+    return preset, dict(parse_option(text) for text in options)
 
 
 def gradient_identity(backend_names, task: str, preset: str | None = None, options: dict | None = None) -> dict:

@@ -80,6 +80,23 @@ def machine() -> dict:
     }
 
 
+def shown_path(path: str | os.PathLike) -> str:
+    """A path as results show it: relative to the working directory or the repository where it lies
+    inside one (``harness/profiles/standard.toml``), so no machine's folders end up in a result."""
+    resolved = Path(path).resolve()
+    for base in (Path.cwd().resolve(), Path(__file__).resolve().parents[1]):
+        if resolved.is_relative_to(base):
+            return str(resolved.relative_to(base))
+    return str(path)
+
+
+def harness_command(words: list[str] | None = None) -> str:
+    """``python -m harness WORDS`` (default: this process's arguments) as a result records it, its
+    absolute paths shown as :func:`shown_path` shows them."""
+    words = sys.argv[1:] if words is None else words
+    return " ".join(["python -m harness", *(shown_path(w) if os.path.isabs(w) else w for w in map(str, words))])
+
+
 def provenance(command: str | None = None) -> dict:
     """The command, code version, package versions and machine behind a result.
 
@@ -92,7 +109,7 @@ def provenance(command: str | None = None) -> dict:
         except metadata.PackageNotFoundError:
             versions[name] = None
     return {
-        "command": command or "python -m harness " + " ".join(sys.argv[1:]),
+        "command": command or harness_command(),
         "git_commit": _git_commit(),
         "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "python": platform.python_version(),

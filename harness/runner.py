@@ -339,19 +339,9 @@ def run_suite(
     return _finish(data, spec_path, store, all_jobs, command, stream)
 
 
-def shown_path(path: Path) -> str:
-    """A spec's path as results show it: relative to the working directory or the repository where it
-    lies inside one (``harness/profiles/standard.toml``), so no machine's folders end up in a result."""
-    resolved = Path(path).resolve()
-    for base in (Path.cwd().resolve(), Path(__file__).resolve().parents[1]):
-        if resolved.is_relative_to(base):
-            return str(resolved.relative_to(base))
-    return str(path)
-
-
 def _finish(data: dict, spec_path: Path, store: Path, jobs: list[Job], command: str | None, stream) -> int:
     from harness.report import write_bench_report
-    from harness.results import provenance
+    from harness.results import harness_command, provenance, shown_path
 
     name = data["suite"]["name"]
     runs = [j.run_dir for j in jobs if j.kind == "train" and (j.run_dir / "config.json").is_file()]
@@ -367,7 +357,13 @@ def _finish(data: dict, spec_path: Path, store: Path, jobs: list[Job], command: 
         "profile": name,
         "spec": shown_path(spec_path),
         "jobs": [
-            {"label": j.label, "kind": j.kind, "state": j.state, "output": str(j.output), "command": " ".join(j.argv)}
+            {
+                "label": j.label,
+                "kind": j.kind,
+                "state": j.state,
+                "output": shown_path(j.output),
+                "command": harness_command(j.argv[3:]),  # after the interpreter's "python -m harness"
+            }
             for j in jobs
         ],
         "provenance": provenance(command),

@@ -444,7 +444,7 @@ def test_a_killed_suite_takes_its_jobs_down_resumably(tmp_path):
 
 
 def test_results_show_a_spec_inside_the_repository_by_its_relative_path(tmp_path, monkeypatch):
-    from harness.runner import shown_path
+    from harness.results import harness_command, shown_path
 
     profile = Path(__file__).resolve().parents[1] / "harness" / "profiles" / "standard.toml"
     monkeypatch.chdir(tmp_path)
@@ -452,3 +452,8 @@ def test_results_show_a_spec_inside_the_repository_by_its_relative_path(tmp_path
     assert shown_path(tmp_path / "mine.toml") == "mine.toml"
     elsewhere = tmp_path.parent / "elsewhere.toml"
     assert shown_path(elsewhere) == str(elsewhere)
+    # a recorded command shows its paths the same way; other words stay as they were
+    out = tmp_path / "store" / "checks" / "gradcheck.json"
+    recorded = harness_command(["gradcheck", "--task", "ant", "--out", str(out), "--spec", str(elsewhere)])
+    shown_out = Path("store", "checks", "gradcheck.json")
+    assert recorded == f"python -m harness gradcheck --task ant --out {shown_out} --spec {elsewhere}"

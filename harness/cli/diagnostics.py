@@ -9,12 +9,12 @@ from harness.cli.inputs import (
     _check_memory,
     _check_output_file,
     _check_preset,
-    _command,
     _make_sim,
     _validate_names,
     out_stem,
     sim_physics,
 )
+from harness.results import harness_command
 
 
 def cmd_gradcheck(args) -> int:
@@ -61,7 +61,7 @@ def cmd_gradcheck(args) -> int:
             "passed": ok,
             **sim_physics(sim),
         }
-        print(f"wrote {write_check(args.out, 'gradcheck', summary, _command())}")
+        print(f"wrote {write_check(args.out, 'gradcheck', summary, harness_command())}")
     return 0 if ok else 1
 
 
@@ -171,7 +171,7 @@ def _write_result_and_table(out: str, kind: str, result: dict, text: str):
 
     stem = Path(out_stem(out))
     print(f"wrote {atomic_write_text(stem.with_suffix('.md'), text)}")
-    print(f"wrote {write_check(stem.with_suffix('.json'), kind, result, _command())}")
+    print(f"wrote {write_check(stem.with_suffix('.json'), kind, result, harness_command())}")
 
 
 def cmd_contact_jacobians(args) -> int:

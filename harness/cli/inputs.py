@@ -4,17 +4,12 @@ validations of names, devices, presets, output paths and hyperparameters."""
 from __future__ import annotations
 
 import dataclasses
-import sys
 
 EXIT_BAD_INPUT = 2
 
 
 class BadInput(Exception):
     """User input we refuse: reported as one line, exit code 2."""
-
-
-def _command() -> str:
-    return "python -m harness " + " ".join(sys.argv[1:])
 
 
 def _validate_names(backend: str | None = None, task: str | None = None) -> None:

@@ -86,6 +86,15 @@ def parse_option(text: str) -> tuple[str, object]:
     return key.strip(), value.strip()
 
 
+def physics_words(words: list[str]) -> tuple[str | None, list[str]]:
+    """The physics a command's words name besides the defaults: the ``--preset`` value (None when
+    absent) and every ``--backend-option`` ``KEY=VALUE`` as written. The suite addresses a check by them
+    and the checks table prints them, so both read them here."""
+    preset = words[words.index("--preset") + 1] if "--preset" in words[:-1] else None
+    options = [value for flag, value in zip(words, words[1:], strict=False) if flag == "--backend-option"]
+    return preset, options
+
+
 def _positive_float(text: str) -> float:
     value = _finite(text) if text.lower() not in ("nan", "inf", "-inf") else float("nan")
     if not value > 0.0:

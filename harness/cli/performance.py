@@ -7,12 +7,12 @@ from harness.cli.inputs import (
     _check_device,
     _check_memory,
     _check_output_file,
-    _command,
     _make_sim,
     _validate_names,
     out_stem,
     sim_physics,
 )
+from harness.results import harness_command
 
 
 def cmd_throughput(args) -> int:
@@ -90,7 +90,7 @@ def cmd_solver_probe(args) -> int:
     run_probe(
         num_envs=args.num_envs,
         out=args.out,
-        command=_command(),
+        command=harness_command(),
         task=args.task,
         steps=args.max_steps,
         backend=args.backend,
@@ -141,7 +141,7 @@ def cmd_fd_schemes(args) -> int:
         contact_states=args.contact_states,
     )
     if prefix:  # the JSON last: a suite counts the check done when it exists
-        print(f"wrote {atomic_write_text(prefix + '.md', markdown(report, _command()))}")
+        print(f"wrote {atomic_write_text(prefix + '.md', markdown(report, harness_command()))}")
         print(f"wrote {write_check(prefix + '.json', 'fd-schemes', report)}")
     return 0
 
@@ -175,9 +175,9 @@ def cmd_scaling(args) -> int:
     )
     prov = provenance()
     if not out:
-        print(to_csv(rows, _command(), prov), end="")
+        print(to_csv(rows, harness_command(), prov), end="")
         return 0
-    for path in write(rows, out, _command(), prov):
+    for path in write(rows, out, harness_command(), prov):
         print(f"wrote {path}")
     result = {"backend": args.backend, "task": args.task, "rows": rows}
     print(f"wrote {write_check(out + '.json', 'scaling', result)}")

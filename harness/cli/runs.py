@@ -9,10 +9,10 @@ from harness.cli.inputs import (
     _check_memory,
     _check_output_file,
     _check_preset,
-    _command,
     _validate_names,
 )
 from harness.cli.parser import FLAGS
+from harness.results import harness_command
 
 
 def cmd_list(args) -> int:
@@ -42,7 +42,7 @@ def cmd_train(args) -> int:
         ]
         if given:
             raise BadInput(f"--resume continues the run as configured; drop {', '.join(given)} (only --epochs)")
-        resume(args.resume, args.epochs, checkpoint_every=args.checkpoint_every, command=_command())
+        resume(args.resume, args.epochs, checkpoint_every=args.checkpoint_every, command=harness_command())
         return 0
     missing = [name for name in ("backend", "task", "algo", "epochs", "out") if getattr(args, name) is None]
     if missing:
@@ -61,7 +61,7 @@ def cmd_train(args) -> int:
         seed=args.seed,
         device=args.device,
         checkpoint_every=args.checkpoint_every,
-        command=_command(),
+        command=harness_command(),
         preset=args.preset,
         backend_options=dict(args.backend_option or []),
     )
@@ -107,7 +107,7 @@ def cmd_report(args) -> int:
     for run in runs:
         read_config(run)
     _check_output_file(args.out)
-    for path in write_report(runs, args.out, _command(), plot=not args.no_plot):
+    for path in write_report(runs, args.out, harness_command(), plot=not args.no_plot):
         print(f"wrote {path}")
     return 0
 
@@ -152,7 +152,7 @@ def cmd_sweep(args) -> int:
         spec=spec,
         store=out.parent,
         jobs=args.jobs,
-        command=_command(),
+        command=harness_command(),
         launcher=args.launcher,
         address=args.address,
         gpus_per_run=args.gpus_per_run,
@@ -169,7 +169,7 @@ def cmd_bench(args) -> int:
         jobs=args.jobs,
         dry_run=args.dry_run,
         report_only=args.report_only,
-        command=_command(),
+        command=harness_command(),
         launcher=args.launcher,
         address=args.address,
         gpus_per_run=args.gpus_per_run,

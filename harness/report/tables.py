@@ -709,15 +709,13 @@ def check_settings(check: CheckRecord) -> str | None:
     ``fd_scheme=forward, fd_eps_state=2e-3``; None at the defaults."""
     import shlex
 
+    from harness.cli.parser import physics_words
+
     try:
-        words = shlex.split(str(check.provenance.get("command") or ""))
+        preset, options = physics_words(shlex.split(str(check.provenance.get("command") or "")))
     except ValueError:
         return None
-    named = [
-        f"preset={value}" if flag == "--preset" else value
-        for flag, value in zip(words, words[1:], strict=False)
-        if flag in ("--preset", "--backend-option")
-    ]
+    named = ([f"preset={preset}"] if preset else []) + options
     return ", ".join(named) or None
 
 
