@@ -273,6 +273,59 @@ def test_probability_of_improvement_is_rliables(suite):
     assert pd.isna(_row(returns, task="ant", backend="newton", algo="shac", horizon=16)["p_improvement"])
 
 
+def test_paper_claims_are_judged_by_the_ci_of_the_relative_change_of_the_mean(suite):
+    from harness.report.claims import claim_verdict
+
+    claims = pd.read_csv(suite["out"] / "returns_claims.csv")
+    # the synthetic suite tests one claim (Ant SHAC-TDAdpt over SHAC, +50%), at one setting: h 16
+    row = _row(claims, task="ant", backend="newton", algo="shac-tdadpt")
+    assert (row["base"], row["horizon"], row["seeds"], row["base_seeds"]) == ("shac", 16, 5, 5)
+    assert row["claimed_change"] == 0.5
+    assert row["measured_change"] == pytest.approx(np.mean(TDADPT_FINALS) / np.mean(SHAC_FINALS) - 1.0)
+    independent = stats.bootstrap(
+        (np.array(TDADPT_FINALS), np.array(SHAC_FINALS)),
+        lambda x, y, axis=-1: x.mean(axis=axis) / y.mean(axis=axis) - 1.0,
+        paired=False,
+        vectorized=True,
+        n_resamples=2000,
+        method="percentile",
+        rng=np.random.default_rng(0),
+    ).confidence_interval
+    assert (row["change_ci_low"], row["change_ci_high"]) == pytest.approx((independent.low, independent.high))
+    assert row["verdict"] == claim_verdict(independent.low, independent.high, 0.5)
+    assert len(claims) == 1  # no other claim has both of its algorithms evaluated at one setting
+    assert "## The paper's claims" in (suite["out"] / "returns.md").read_text()
+
+
+@pytest.mark.parametrize(
+    ("low", "high", "verdict"),
+    [
+        (0.1, 0.9, "confirmed"),
+        (0.6, 0.9, "confirmed, larger than claimed"),
+        (0.1, 0.3, "improvement confirmed, smaller than claimed"),
+        (-0.2, 0.3, "contradicted (claimed size excluded)"),
+        (-0.5, -0.1, "contradicted (below the base)"),
+        (-0.2, 0.7, "undecided"),
+        (math.nan, math.nan, "undecided (under 2 seeds a side)"),
+    ],
+)
+def test_a_claims_verdict_reads_its_ci_against_zero_and_the_claimed_size(low, high, verdict):
+    from harness.report.claims import claim_verdict
+
+    assert claim_verdict(low, high, 0.5) == verdict
+
+
+def test_the_relative_change_of_the_mean_ignores_the_returns_scale():
+    from harness.report.stats import relative_mean_change_with_ci
+
+    variant, base = np.array([12.0, 15.0, 11.0]), np.array([10.0, 8.0, 9.0])
+    point, low, high = relative_mean_change_with_ci(variant, base)
+    assert point == pytest.approx(38.0 / 27.0 - 1.0) and low < point < high
+    assert relative_mean_change_with_ci(7.0 * variant, 7.0 * base) == pytest.approx((point, low, high))
+    assert math.isnan(relative_mean_change_with_ci(variant, [3.0])[1])  # one base seed: a value, no CI
+    assert all(math.isnan(v) for v in relative_mean_change_with_ci(variant, [-1.0, -2.0]))  # no ratio to a loss
+
+
 def test_aggregate_normalises_each_task_by_untrained_and_best(suite):
     aggregate = pd.read_csv(suite["out"] / "aggregate.csv")
     newton = aggregate[aggregate["backend"] == "newton"].set_index("algo")

@@ -13,6 +13,7 @@ from pathlib import Path
 import pandas as pd
 
 from harness.report.aggregate import aggregate_table
+from harness.report.claims import claims_table
 from harness.report.formatting import fmt, fmt_ci, fmt_count, fmt_pct, fmt_range, fmt_verdict, is_missing
 from harness.report.records import CheckRecord, RunRecord
 from harness.report.stats import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, EFFECTS
@@ -146,6 +147,11 @@ def write_table(table: Table, out_dir: Path, header: dict) -> list[Path]:
     return written
 
 
+def _signed_pct(value) -> str:
+    """A relative change as a signed whole percentage: 0.25 -> +25%."""
+    return "n/a" if is_missing(value) else f"{100.0 * value:+.0f}%"
+
+
 def _base_cell(row: pd.Series) -> str:
     if not isinstance(row["base"], str):
         return "-"
@@ -227,6 +233,21 @@ def returns_document(runs: list[RunRecord]) -> Table:
                 csv_suffix="_power",
                 empty="no run has an eval.json",
             ),
+            Section(
+                claims_table(runs),
+                _key_columns("task", "backend", "num_envs", "epochs", "horizon", "env_steps", "algo", "base")
+                + [
+                    ("seeds (algo / base)", lambda r: f"{r['seeds']} / {r['base_seeds']}"),
+                    ("claimed", lambda r: _signed_pct(r["claimed_change"])),
+                    ("measured (mean)", lambda r: _signed_pct(r["measured_change"])),
+                    ("95% CI", lambda r: f"[{_signed_pct(r['change_ci_low'])}, {_signed_pct(r['change_ci_high'])}]"),
+                    ("verdict", "verdict"),
+                    ("paper", "source"),
+                ],
+                heading="The paper's claims: each TD-lambda variant against its base",
+                csv_suffix="_claims",
+                empty="no setting has evaluated runs of a claim's two algorithms",
+            ),
         ],
         [
             "IQM: interquartile mean over training seeds (`scipy.stats.trim_mean(x, 0.25)`, rliable's "
@@ -252,6 +273,15 @@ def returns_document(runs: list[RunRecord]) -> Table:
             "mass), each env's mean over its first episode, averaged over envs and eval seeds; IQM and CI over "
             "training seeds as for the return. It says whether a policy moves forward at all, whatever the "
             "reward's other terms pay; n/a for evaluations made before it was recorded.",
+            "The paper's claims: each claimed improvement of a TD-lambda variant over its base (ARE: Fig. 5 for "
+            "the Ant, Fig. 9 and the abstract for the Go2), as the relative change of the mean final return, "
+            "mean(algo) / mean(base) - 1 (the paper normalises by the base's mean), at every setting where both "
+            "have evaluated runs; 95% CI from a two-sample unpaired percentile bootstrap. Verdict: confirmed when "
+            "the CI lies above 0 and holds the claimed size (or lies above it: larger than claimed); an "
+            "improvement smaller than claimed when it lies above 0 and below the claimed size; contradicted when "
+            "it lies below the claimed size without excluding 0, or below 0; undecided when it holds both 0 and "
+            "the claimed size. The paper's budget is "
+            "N 64, h 32, 2000 epochs; a verdict at another setting speaks of that setting only.",
             "Runs without eval.json (unfinished) are left out of this table.",
         ],
         _run_commits(evaluated),
