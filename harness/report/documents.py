@@ -152,6 +152,11 @@ def _signed_pct(value) -> str:
     return "n/a" if is_missing(value) else f"{100.0 * value:+.0f}%"
 
 
+def _change_ci(row: pd.Series) -> str:
+    low, high = row["change_ci_low"], row["change_ci_high"]
+    return "n/a" if is_missing(low) or is_missing(high) else f"[{_signed_pct(low)}, {_signed_pct(high)}]"
+
+
 def _base_cell(row: pd.Series) -> str:
     if not isinstance(row["base"], str):
         return "-"
@@ -240,7 +245,7 @@ def returns_document(runs: list[RunRecord]) -> Table:
                     ("seeds (algo / base)", lambda r: f"{r['seeds']} / {r['base_seeds']}"),
                     ("claimed", lambda r: _signed_pct(r["claimed_change"])),
                     ("measured (mean)", lambda r: _signed_pct(r["measured_change"])),
-                    ("95% CI", lambda r: f"[{_signed_pct(r['change_ci_low'])}, {_signed_pct(r['change_ci_high'])}]"),
+                    ("95% CI", _change_ci),
                     ("verdict", "verdict"),
                     ("paper", "source"),
                 ],
