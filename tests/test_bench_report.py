@@ -297,6 +297,32 @@ def test_paper_claims_are_judged_by_the_ci_of_the_relative_change_of_the_mean(su
     assert "## The paper's claims" in (suite["out"] / "returns.md").read_text()
 
 
+def test_the_go2_forward_velocity_claim_reads_each_runs_velocity_and_needs_a_moving_base(tmp_path):
+    from harness.report.claims import PAPER_CLAIMS, claims_table
+
+    velocity_claims = [c for c in PAPER_CLAIMS if c.metric == "forward velocity"]
+    assert [(c.task, c.algo, c.base, c.change) for c in velocity_claims] == [("go2", "shac-tdadpt", "shac", 1.0)]
+    settings = {  # num_envs -> (shac's velocities, shac-tdadpt's): one moving base, one that is not, one unrecorded
+        4: ([0.1, 0.2], [0.3, 0.5]),
+        8: ([-0.1, 0.05], [0.3, 0.5]),
+        16: ([None, None], [0.3, 0.5]),
+    }
+    for num_envs, by_algo in settings.items():
+        for algo, velocities in zip(("shac", "shac-tdadpt"), by_algo, strict=True):
+            for seed, velocity in enumerate(velocities):
+                run = make_run(tmp_path, "go2", "newton", algo, seed, 16, 100.0 + seed, [1.0] * 6, num_envs=num_envs)
+                payload = _eval_payload(100.0 + seed)
+                if velocity is not None:
+                    payload["final"]["mean_forward_velocity"] = velocity
+                (run / "eval.json").write_text(json.dumps(payload))
+    table = claims_table([load_run(path) for path in collect_runs(tmp_path)], velocity_claims)
+    assert sorted(table["num_envs"]) == [4, 8]  # evaluations without a velocity test nothing
+    moving = _row(table, num_envs=4)
+    assert moving["measured_change"] == pytest.approx(0.4 / 0.15 - 1.0)
+    assert moving["metric"] == "forward velocity" and (moving["seeds"], moving["base_seeds"]) == (2, 2)
+    assert _row(table, num_envs=8)["verdict"].startswith("no ratio: the base's mean is")
+
+
 @pytest.mark.parametrize(
     ("low", "high", "verdict"),
     [

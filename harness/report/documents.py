@@ -240,7 +240,7 @@ def returns_document(runs: list[RunRecord]) -> Table:
             ),
             Section(
                 claims_table(runs),
-                _key_columns("task", "backend", "num_envs", "epochs", "horizon", "env_steps", "algo", "base")
+                _key_columns("task", "backend", "num_envs", "epochs", "horizon", "env_steps", "metric", "algo", "base")
                 + [
                     ("seeds (algo / base)", lambda r: f"{r['seeds']} / {r['base_seeds']}"),
                     ("claimed", lambda r: _signed_pct(r["claimed_change"])),
@@ -281,12 +281,14 @@ def returns_document(runs: list[RunRecord]) -> Table:
             "The paper's claims: each claimed improvement of a TD-lambda variant over its base (ARE: Fig. 5 for "
             "the Ant, Fig. 9 and the abstract for the Go2), as the relative change of the mean final return, "
             "mean(algo) / mean(base) - 1 (the paper normalises by the base's mean), at every setting where both "
-            "have evaluated runs; 95% CI from a two-sample unpaired percentile bootstrap. Verdict: confirmed when "
-            "the CI lies above 0 and holds the claimed size (or lies above it: larger than claimed); an "
+            "have evaluated runs; for the Go2's SHAC-TDAdpt also of the mean forward velocity (the paper says "
+            "SHAC acquires no forward locomotion: does TD-lambda about double it?), no ratio where the base's "
+            "mean is not positive; 95% CI from a two-sample unpaired percentile bootstrap. Verdict: confirmed "
+            "when the CI lies above 0 and holds the claimed size (or lies above it: larger than claimed); an "
             "improvement smaller than claimed when it lies above 0 and below the claimed size; contradicted when "
             "it lies below the claimed size without excluding 0, or below 0; undecided when it holds both 0 and "
-            "the claimed size. The paper's budget is "
-            "N 64, h 32, 2000 epochs; a verdict at another setting speaks of that setting only.",
+            "the claimed size. The paper's budget is N 64, h 32, 2000 epochs; a verdict at another setting "
+            "speaks of that setting only.",
             "Runs without eval.json (unfinished) are left out of this table.",
         ],
         _run_commits(evaluated),
