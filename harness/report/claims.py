@@ -1,4 +1,5 @@
-"""The paper's claims about final returns, each judged against the runs that test it.
+"""The paper's claims of improvement (final return, the Go2's forward velocity), each judged against the
+runs that test it.
 
 A claim says a TD-lambda variant beats its base by about a given share of the base's mean at the paper's
 budget (ARE, Section V: Fig. 5 for the Ant, Fig. 9 and the abstract for the Go2), in final return or, for
@@ -22,6 +23,9 @@ from harness.report.stats import relative_mean_change_with_ci
 
 @dataclass(frozen=True)
 class Claim:
+    """``algo`` beats ``base`` on ``task`` by about ``change`` of the base's mean ``metric``, as ``source``
+    in the paper says."""
+
     task: str
     algo: str
     base: str
