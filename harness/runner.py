@@ -341,18 +341,17 @@ def run_suite(
 
 def _finish(data: dict, spec_path: Path, store: Path, jobs: list[Job], command: str | None, stream) -> int:
     from harness.report import write_bench_report
-    from harness.results import harness_command, provenance, shown_path
+    from harness.results import harness_command, provenance, shown_path, write_json
 
     name = data["suite"]["name"]
     runs = [j.run_dir for j in jobs if j.kind == "train" and (j.run_dir / "config.json").is_file()]
     checks = [j.output for j in jobs if j.kind in CHECK_KINDS and j.output.is_file()]
     out_dir = store
-    header = {**provenance(command), "profile": name, "spec": shown_path(spec_path)}
+    made_by = provenance(command)
+    header = {**made_by, "profile": name, "spec": shown_path(spec_path)}
     written = write_bench_report(runs, checks, out_dir, header)
     failed = [j for j in jobs if j.state in ("failed", "skipped")]
     missing = [j for j in jobs if j.state == "pending"]
-    from harness.results import write_json
-
     status = {
         "profile": name,
         "spec": shown_path(spec_path),
@@ -366,7 +365,7 @@ def _finish(data: dict, spec_path: Path, store: Path, jobs: list[Job], command: 
             }
             for j in jobs
         ],
-        "provenance": provenance(command),
+        "provenance": made_by,
     }
     written.append(write_json(out_dir / "jobs.json", status))
     print(f"\n[bench {name}] wrote {len(written)} files in {out_dir}:", file=stream)

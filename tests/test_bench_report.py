@@ -708,11 +708,16 @@ def test_the_returns_table_gives_the_forward_velocity_over_seeds_where_evaluatio
         payload = json.loads((run / "eval.json").read_text())
         payload["final"]["mean_forward_velocity"] = velocity
         (run / "eval.json").write_text(json.dumps(payload))
-    make_run(tmp_path / "ant", "ant", "newton", "shac", 0, 16, 1.0, [1.0] * EPOCHS)  # an older eval.json
+    make_run(tmp_path / "go2", "go2", "newton", "shac", 4, 16, 1.0, [1.0] * EPOCHS)  # an older eval.json
+    make_run(tmp_path / "ant", "ant", "newton", "shac", 0, 16, 1.0, [1.0] * EPOCHS)
     table = returns_table([load_run(p) for p in collect_runs(tmp_path)]).set_index("task")
     assert table.loc["go2", "forward_velocity_iqm"] == pytest.approx(stats.trim_mean(velocities, 0.25))
     assert table.loc["go2", "forward_velocity_ci_low"] <= 0.3 <= table.loc["go2", "forward_velocity_ci_high"]
-    assert math.isnan(table.loc["ant", "forward_velocity_iqm"])
+    assert (table.loc["go2", "seeds"], table.loc["go2", "forward_velocity_seeds"]) == (5, 4)
+    assert math.isnan(table.loc["ant", "forward_velocity_iqm"]) and table.loc["ant", "forward_velocity_seeds"] == 0
+    written = write_bench_report(collect_runs(tmp_path), [], tmp_path / "report", HEADER)
+    returns_md = next(p for p in written if p.name == "returns.md").read_text()
+    assert "| 0.3 (4 of 5 seeds) |" in returns_md  # IQM of the four that recorded it
 
 
 def test_returns_against_h_compare_horizons_at_one_budget_only(tmp_path):

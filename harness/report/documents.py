@@ -163,6 +163,11 @@ def _base_cell(row: pd.Series) -> str:
     return row["base"] if not is_missing(row["base_seeds"]) else f"{row['base']} (no runs)"
 
 
+def _velocity_cell(row: pd.Series) -> str:
+    seeds, of = row["forward_velocity_seeds"], row["seeds"]
+    return fmt(row["forward_velocity_iqm"]) + (f" ({seeds} of {of} seeds)" if 0 < seeds < of else "")
+
+
 def rests_on_runs(runs: list[RunRecord], what: str = "training runs") -> str:
     """The sentence saying what a table's numbers rest on: runs, groups, seeds, epochs, env steps."""
     if not runs:
@@ -220,7 +225,7 @@ def returns_document(runs: list[RunRecord]) -> Table:
                     ("P(algo > base)", "p_improvement"),
                     ("P 95% CI", lambda r: fmt_ci(r["p_improvement_ci_low"], r["p_improvement_ci_high"])),
                     ("detectable at 80% power", "mde_80"),
-                    ("forward velocity m/s (IQM)", "forward_velocity_iqm"),
+                    ("forward velocity m/s (IQM)", _velocity_cell),
                     ("velocity 95% CI", lambda r: fmt_ci(r["forward_velocity_ci_low"], r["forward_velocity_ci_high"])),
                 ],
                 empty="no run has an eval.json",
@@ -277,7 +282,8 @@ def returns_document(runs: list[RunRecord]) -> Table:
             "Forward velocity: the final policy's velocity along +x (the root's; the SoftJumper's centre of "
             "mass), each env's mean over its first episode, averaged over envs and eval seeds; IQM and CI over "
             "training seeds as for the return. It says whether a policy moves forward at all, whatever the "
-            "reward's other terms pay; n/a for evaluations made before it was recorded.",
+            "reward's other terms pay; over the training seeds whose evaluation recorded it (the cell says how "
+            "many when not all did), n/a when none did.",
             "The paper's claims: each claimed improvement of a TD-lambda variant over its base (ARE: Fig. 5 for "
             "the Ant, Fig. 9 and the abstract for the Go2), as the relative change of the mean final return, "
             "mean(algo) / mean(base) - 1 (the paper normalises by the base's mean), at every setting where both "

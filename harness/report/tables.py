@@ -51,7 +51,8 @@ TIME_PARTS = (  # (column stem, label, metrics field)
 def returns_table(runs: list[RunRecord]) -> pd.DataFrame:
     """Final evaluation return per (task, backend, num_envs, planned epochs, horizon, algo) over training seeds;
     runs without eval.json are left out. ``improvement_*``: IQM(algo) - IQM(base algo) in the same group but
-    for the algorithm."""
+    for the algorithm. ``forward_velocity_*``: over the ``forward_velocity_seeds`` training seeds whose
+    evaluation recorded the velocity."""
     groups = by_group(r for r in runs if r.evaluation is not None)
     finals = {key: np.array([r.final_return for r in members], dtype=float) for key, members in groups.items()}
     rows = []
@@ -65,7 +66,8 @@ def returns_table(runs: list[RunRecord]) -> pd.DataFrame:
             probability_of_improvement_with_ci([final], [base_final]) if base_final is not None else (math.nan,) * 3
         )
         velocity = np.array([r.final_forward_velocity for r in members], dtype=float)
-        velocity_iqm = iqm_with_ci(velocity) if np.isfinite(velocity).all() else (math.nan,) * 3
+        velocity = velocity[np.isfinite(velocity)]  # evaluations made before it was recorded have none
+        velocity_iqm = iqm_with_ci(velocity) if velocity.size else (math.nan,) * 3
         if base_final is not None and final.size + base_final.size > 2:
             spread = pooled_std([final, base_final])
             mde = minimum_detectable_difference(spread, final.size, base_final.size)
@@ -98,6 +100,7 @@ def returns_table(runs: list[RunRecord]) -> pd.DataFrame:
                 "p_improvement_ci_low": better[1],
                 "p_improvement_ci_high": better[2],
                 "mde_80": mde,
+                "forward_velocity_seeds": velocity.size,
                 "forward_velocity_iqm": velocity_iqm[0],
                 "forward_velocity_ci_low": velocity_iqm[1],
                 "forward_velocity_ci_high": velocity_iqm[2],
@@ -132,6 +135,7 @@ _RETURNS_COLUMNS = [
     "p_improvement_ci_low",
     "p_improvement_ci_high",
     "mde_80",
+    "forward_velocity_seeds",
     "forward_velocity_iqm",
     "forward_velocity_ci_low",
     "forward_velocity_ci_high",
