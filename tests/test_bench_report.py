@@ -325,6 +325,51 @@ def test_the_go2_forward_velocity_claim_reads_each_runs_velocity_and_needs_a_mov
     assert _row(table, num_envs=8)["verdict"].startswith("no ratio: the base's mean is")
 
 
+def test_the_learned_lambdas_course_is_judged_over_finished_adaptive_runs(suite, tmp_path):
+    from harness.report.claims import lambda_course_table
+
+    course = pd.read_csv(suite["out"] / "returns_lambda.csv")
+    # the synthetic suite's one adaptive algorithm: 5 seeds, each lambda 0.95 - 0.01 epoch over 4 epochs
+    row = _row(course, task="ant", backend="newton", algo="shac-tdadpt")
+    assert row["seeds"] == 5 and row["lambda_first"] == pytest.approx(0.95)
+    assert row["lambda_final_mean"] == pytest.approx(0.92) and row["change"] == pytest.approx(-0.03)
+    assert row["falling_share"] == 1.0 and row["verdict"] == "confirmed (falls)"
+    assert len(course) == 1  # shac's lambda is fixed: no row
+    assert "## The paper's claim that the learned lambda falls" in (suite["out"] / "returns.md").read_text()
+    # seeds that disagree leave it open; an unfinished run (no eval.json) does not count
+    courses = {0: [0.95, 0.94, 0.93, 0.92], 1: [0.95, 0.96, 0.95, 0.97], 2: [0.95, 0.5, 0.4, 0.3]}
+    for seed, lam in courses.items():
+        make_run(
+            tmp_path,
+            "ant",
+            "newton",
+            "shac-tdadpt",
+            seed,
+            16,
+            None if seed == 2 else 1.0,
+            [1.0] * 4,
+            extra={"lam": lam},
+        )
+    row = _row(lambda_course_table([load_run(path) for path in collect_runs(tmp_path)]), algo="shac-tdadpt")
+    changes = np.array([-0.03, 0.02])
+    assert row["seeds"] == 2 and row["change"] == pytest.approx(changes.mean())
+    low, high = stats.t.interval(0.95, 1, loc=changes.mean(), scale=stats.sem(changes))
+    assert (row["change_ci_low"], row["change_ci_high"]) == pytest.approx((low, high))
+    assert row["falling_share"] == pytest.approx(np.mean([1.0, 1.0 / 3.0]))
+    assert row["verdict"] == "undecided"
+
+
+@pytest.mark.parametrize(
+    ("low", "high", "verdict"),
+    [(-0.05, -0.01, "confirmed (falls)"), (0.01, 0.05, "contradicted (rises)"), (-0.05, 0.002, "undecided")]
+    + [(math.nan, math.nan, "undecided (under 2 seeds)")],
+)
+def test_the_lambda_verdict_reads_its_ci_against_zero(low, high, verdict):
+    from harness.report.claims import lambda_course_verdict
+
+    assert lambda_course_verdict(low, high) == verdict
+
+
 @pytest.mark.parametrize(
     ("low", "high", "verdict"),
     [

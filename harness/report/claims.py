@@ -1,5 +1,5 @@
 """The paper's claims of improvement (final return, the Go2's forward velocity), each judged against the
-runs that test it.
+runs that test it, and its claim that the learned lambda falls over training (:func:`lambda_course_table`).
 
 A claim says a TD-lambda variant beats its base by about a given share of the base's mean at the paper's
 budget (ARE, Section V: Fig. 5 for the Ant, Fig. 9 and the abstract for the Go2), in final return or, for
@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from harness.report.records import RunRecord, by_group, value_or_range
-from harness.report.stats import relative_mean_change_with_ci
+from harness.report.records import RunRecord, by_group, metric_column, value_or_range
+from harness.report.stats import mean_with_t_ci, relative_mean_change_with_ci, sample_std
 
 
 @dataclass(frozen=True)
@@ -109,3 +109,53 @@ def claims_table(runs: list[RunRecord], claims=PAPER_CLAIMS) -> pd.DataFrame:
     columns = ["task", "backend", "num_envs", "epochs", "horizon", "env_steps", "metric", "algo", "base", "seeds"]
     columns += ["base_seeds", "claimed_change", "measured_change", "change_ci_low", "change_ci_high", "verdict"]
     return pd.DataFrame(rows, columns=columns + ["source"])
+
+
+def lambda_course_verdict(low: float, high: float) -> str:
+    """What a 95% CI [low, high] of the learned lambda's change over training says of the paper's Fig. 4b
+    (lambda "gradually decreases over time")."""
+    if math.isnan(low) or math.isnan(high):
+        return "undecided (under 2 seeds)"
+    if high < 0.0:
+        return "confirmed (falls)"
+    return "contradicted (rises)" if low > 0.0 else "undecided"
+
+
+def lambda_course_table(runs: list[RunRecord]) -> pd.DataFrame:
+    """The paper's Fig. 4b for every setting with finished (evaluated) runs of an adaptive-lambda algorithm:
+    lambda after the first and the last epoch, the change between them per seed (mean, 95% t CI over seeds),
+    the share of epochs in which lambda fell (how gradual the course is), and the verdict."""
+    groups = by_group(r for r in runs if r.evaluation is not None and r.algo.endswith("-tdadpt"))
+    rows = []
+    for (task, backend, num_envs, planned, horizon, algo), members in groups.items():
+        courses = [metric_column(r.metrics, "lam").to_numpy(dtype=float) for r in members]
+        courses = [c[np.isfinite(c)] for c in courses]
+        if not all(c.size > 1 for c in courses):
+            continue  # runs from before lambda was logged
+        first = np.array([c[0] for c in courses])
+        last = np.array([c[-1] for c in courses])
+        change, low, high = mean_with_t_ci(last - first)
+        rows.append(
+            {
+                "task": task,
+                "backend": backend,
+                "num_envs": num_envs,
+                "epochs": planned,
+                "horizon": horizon,
+                "env_steps": value_or_range(r.env_steps for r in members),
+                "algo": algo,
+                "seeds": len(members),
+                "lambda_first": float(first.mean()),
+                "lambda_final_mean": float(last.mean()),
+                "lambda_final_std": sample_std(last),
+                "change": change,
+                "change_ci_low": low,
+                "change_ci_high": high,
+                "falling_share": float(np.mean([np.mean(np.diff(c) < 0.0) for c in courses])),
+                "verdict": lambda_course_verdict(low, high),
+                "source": "Fig. 4b",
+            }
+        )
+    columns = ["task", "backend", "num_envs", "epochs", "horizon", "env_steps", "algo", "seeds", "lambda_first"]
+    columns += ["lambda_final_mean", "lambda_final_std", "change", "change_ci_low", "change_ci_high"]
+    return pd.DataFrame(rows, columns=columns + ["falling_share", "verdict", "source"])

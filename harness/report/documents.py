@@ -14,7 +14,7 @@ from pathlib import Path
 import pandas as pd
 
 from harness.report.aggregate import aggregate_table
-from harness.report.claims import claims_table
+from harness.report.claims import claims_table, lambda_course_table
 from harness.report.formatting import fmt, fmt_ci, fmt_count, fmt_pct, fmt_range, fmt_verdict, is_missing
 from harness.report.records import CheckRecord, RunRecord
 from harness.report.stats import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, EFFECTS
@@ -262,6 +262,25 @@ def returns_document(runs: list[RunRecord]) -> Table:
                 csv_suffix="_claims",
                 empty="no setting has evaluated runs of a claim's two algorithms",
             ),
+            Section(
+                lambda_course_table(runs),
+                _key_columns("task", "backend", "num_envs", "epochs", "horizon", "env_steps", "algo", "seeds")
+                + [
+                    ("lambda after epoch 1 (mean)", "lambda_first"),
+                    (
+                        "final lambda (mean ± std)",
+                        lambda r: f"{fmt(r['lambda_final_mean'])} ± {fmt(r['lambda_final_std'])}",
+                    ),
+                    ("change (mean)", "change"),
+                    ("95% CI", lambda r: fmt_ci(r["change_ci_low"], r["change_ci_high"])),
+                    ("epochs lambda fell", lambda r: fmt_pct(r["falling_share"])),
+                    ("verdict: lambda falls", "verdict"),
+                    ("paper", "source"),
+                ],
+                heading="The paper's claim that the learned lambda falls over training",
+                csv_suffix="_lambda",
+                empty="no adaptive-lambda algorithm has evaluated runs",
+            ),
         ],
         [
             "IQM: interquartile mean over training seeds (`scipy.stats.trim_mean(x, 0.25)`, rliable's "
@@ -302,7 +321,12 @@ def returns_document(runs: list[RunRecord]) -> Table:
             "it lies below the claimed size without excluding 0, or below 0; undecided when it holds both 0 and "
             "the claimed size. The paper's budget is N 64, h 32, 2000 epochs; a verdict at another setting "
             "speaks of that setting only.",
-            "Runs without eval.json (unfinished) are left out of this table.",
+            'The learned lambda (Fig. 4b: it "gradually decreases over time"): per finished run of an '
+            "adaptive-lambda algorithm, lambda after its first and its last epoch; change: last - first, mean "
+            "over seeds with the 95% CI of a one-sample t-test; epochs lambda fell: the share of epochs whose "
+            "update lowered it, averaged over seeds. Verdict: confirmed when the CI lies below 0, contradicted "
+            "when above, undecided otherwise. Its course per epoch: lambda_alpha.png.",
+            "Runs without eval.json (unfinished) are left out of these tables.",
         ],
         _run_commits(evaluated),
     )

@@ -187,8 +187,8 @@ def plot_learning_curves(runs: list[RunRecord], x: str, path: Path) -> Path:
             ax.xaxis.set_major_formatter(ticker.EngFormatter(sep=""))  # 40k, 1M: no overlapping long numbers
     versus = "env steps" if x == "env_steps" else "wall-clock time"
     grid.figure.suptitle(
-        f"Training return vs {versus}\nmean over training seeds, 95% bootstrap CI band; running average of "
-        "finished episodes;\neach task / backend at its most common horizon",
+        f"Training return vs {versus}\nmean over training seeds, 95% bootstrap CI band (each point over the "
+        "seeds that reached it);\neach task / backend at its most common horizon",
         y=1.0,
         va="bottom",  # above the panels' own titles, however many lines it has
     )
@@ -363,7 +363,8 @@ def plot_lambda_alpha(runs: list[RunRecord], path: Path) -> Path:
             ax.text(0.5, 0.5, "no SAPO run", transform=ax.transAxes, ha="center", va="center", color="grey")
     grid.set_axis_labels("epoch", "value (dimensionless)")
     grid.figure.suptitle(
-        "TD lambda and SAPO temperature alpha per epoch\nmean over training seeds, 95% bootstrap CI band;\n"
+        "TD lambda and SAPO temperature alpha per epoch\nmean over training seeds, 95% bootstrap CI band "
+        "(each point over the seeds that reached it);\n"
         "each task / backend at its most common horizon",
         y=1.0,
         va="bottom",

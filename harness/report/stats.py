@@ -12,8 +12,9 @@ tables are reproducible.
 
 Also here: the difference of two IQMs and the ratio of two geometric means with two-sample (unpaired)
 bootstrap CIs, the relative change of two means with the CI of an inverted Welch t-test (the paper's
-claims), the geometric mean with its CI, the median over a run's logged epochs, the sample std, and the
-statistical power of a two-sample comparison (the smallest detectable difference, the seeds needed).
+claims), the mean with a one-sample t CI (the learned lambda's course), the geometric mean with its CI,
+the median over a run's logged epochs, the sample std, and the statistical power of a two-sample
+comparison (the smallest detectable difference, the seeds needed).
 """
 
 from __future__ import annotations
@@ -124,6 +125,19 @@ def _welch_margin(variant: np.ndarray, base: np.ndarray, ratio: float) -> float:
     statistic = (variant.mean() - ratio * base.mean()) / math.sqrt(spread)
     dof = spread**2 / (var_v**2 / (variant.size - 1) + var_b**2 / (base.size - 1))
     return abs(statistic) - float(stats.t.ppf(1.0 - (1.0 - CONFIDENCE) / 2.0, dof))
+
+
+def mean_with_t_ci(values: Iterable[float]) -> tuple[float, float, float]:
+    """The mean with the 95% CI of a one-sample t-test, mean +- t_0.975(n - 1) s / sqrt(n); NaN bounds under
+    2 values."""
+    x = np.asarray(list(values), dtype=float)
+    if not x.size:
+        return (math.nan,) * 3
+    mean = float(x.mean())
+    if x.size < 2:
+        return mean, math.nan, math.nan
+    margin = float(stats.t.ppf(1.0 - (1.0 - CONFIDENCE) / 2.0, x.size - 1)) * float(x.std(ddof=1)) / math.sqrt(x.size)
+    return mean, mean - margin, mean + margin
 
 
 def sample_std(values: Iterable[float]) -> float:
