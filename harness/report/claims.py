@@ -51,6 +51,11 @@ PAPER_CLAIMS = (
 )
 
 
+def _setting(task: str, backend: str, num_envs: int | None, planned: int | None, horizon: int) -> dict:
+    """A table row's setting columns, from a run group's key."""
+    return {"task": task, "backend": backend, "num_envs": num_envs, "epochs": planned, "horizon": horizon}
+
+
 def claim_verdict(low: float, high: float, claimed: float) -> str:
     """What a 95% CI [low, high] of the relative change says of a claimed improvement ``claimed`` > 0:
     confirmed when the CI lies above 0 and holds the claimed size; contradicted when it excludes the
@@ -86,12 +91,8 @@ def claims_table(runs: list[RunRecord], claims=PAPER_CLAIMS) -> pd.DataFrame:
             if not base.mean() > 0.0:
                 verdict = f"no ratio: the base's mean is {base.mean():.3g}"
             rows.append(
-                {
-                    "task": task,
-                    "backend": backend,
-                    "num_envs": num_envs,
-                    "epochs": planned,
-                    "horizon": horizon,
+                _setting(task, backend, num_envs, planned, horizon)
+                | {
                     "env_steps": env_steps[(task, backend, num_envs, planned, horizon, algo)],
                     "metric": claim.metric,
                     "algo": algo,
@@ -136,12 +137,8 @@ def lambda_course_table(runs: list[RunRecord]) -> pd.DataFrame:
         last = np.array([c[-1] for c in courses])
         change, low, high = mean_with_t_ci(last - first)
         rows.append(
-            {
-                "task": task,
-                "backend": backend,
-                "num_envs": num_envs,
-                "epochs": planned,
-                "horizon": horizon,
+            _setting(task, backend, num_envs, planned, horizon)
+            | {
                 "env_steps": value_or_range(r.env_steps for r in members),
                 "algo": algo,
                 "seeds": len(members),
