@@ -468,11 +468,13 @@ def memory_problem(jobs: list[Job], at_once: int, device: str = "cpu") -> str | 
 
 
 def train_job(run: RunSpec, run_dir: Path) -> Job:
-    """The job that trains (or resumes) ``run`` in ``run_dir`` and evaluates it: ``bench-run RUN_DIR``."""
+    """The job that trains (or resumes) ``run`` in ``run_dir`` and evaluates it: ``bench-run RUN_DIR``. Its
+    cost counts the epochs a resumed run has left, not the ones its log already holds."""
     # initial and final policy, every seed, at most one episode each
     eval_envs = run.eval_num_envs or 2 * run.num_envs
     eval_steps = 2 * run.eval_seeds * eval_envs * _episode(run.task, run.eval_max_steps)
-    estimate = _STARTUP_S + run.env_steps * _SECONDS_PER_ENV_STEP.get((run.backend, run.task), 5e-3)
+    left = max(run.epochs - _logged_epochs(run_dir / "metrics.jsonl"), 0) / max(run.epochs, 1)
+    estimate = _STARTUP_S + left * run.env_steps * _SECONDS_PER_ENV_STEP.get((run.backend, run.task), 5e-3)
     estimate += eval_steps * _SECONDS_PER_EVAL_STEP.get((run.backend, run.task), 1e-4)
     return Job(
         label=run_dir.name,

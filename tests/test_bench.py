@@ -284,6 +284,21 @@ def test_finished_runs_are_reused_and_interrupted_ones_resumed(tmp_path):
     assert [r["epoch"] for r in rows] == [0, 1, 2]
 
 
+def test_a_resumed_runs_cost_counts_only_the_epochs_it_has_left(tmp_path):
+    data = load_spec(spec_file=str(_write(tmp_path, POINTMASS_SPEC)))[0]
+    fresh = {j.label: j.estimate_s for j in plan(data, tmp_path) if j.kind == "train"}
+    label = sorted(fresh)[0]
+    metrics = tmp_path / "runs" / label / "metrics.jsonl"
+    metrics.parent.mkdir(parents=True)
+    metrics.write_text("".join(json.dumps({"epoch": e}) + "\n" for e in range(2)))  # 2 of its 3 epochs logged
+    again = {j.label: j.estimate_s for j in plan(data, tmp_path) if j.kind == "train"}
+    assert again[label] < fresh[label]
+    assert {k: v for k, v in again.items() if k != label} == {k: v for k, v in fresh.items() if k != label}
+    metrics.write_text(metrics.read_text() + json.dumps({"epoch": 2}) + "\n")  # trained out: only evaluation left
+    finished = next(j.estimate_s for j in plan(data, tmp_path) if j.label == label)
+    assert finished < again[label] and fresh[label] - again[label] == pytest.approx(2.0 * (again[label] - finished))
+
+
 # -- the newcomer's path ----------------------------------------------------------------------------
 
 NEWCOMER_SPEC = """
