@@ -40,7 +40,9 @@ hyperparameter and the physics record: preset, constants, engine settings):
 ``runs/ant_newton_shac_h32_s0_3f2a9c1b7d0e``, ``runs/ant.rewarped_newton_shac_h32_s0_...`` for a
 preset other than the task's default. The same configuration in any spec,
 profile or session lands in the same directory, so a finished run is reused, an interrupted one
-resumed from its last checkpoint (``train --resume`` semantics), and none is ever computed twice.
+resumed from its last checkpoint (``train --resume`` semantics), and none is ever computed twice. A run
+finished on another device (``bench --device cuda`` on a GPU machine, into the same store) stands in for
+the same configuration on this one: it is reused, and its provenance says where it ran.
 Checks and analyses are addressed the same way by their command line. How the jobs run (their
 own processes, logs, failures, Ctrl-C): :mod:`harness.runner`.
 """
@@ -490,6 +492,25 @@ def train_job(run: RunSpec, run_dir: Path) -> Job:
     )
 
 
+def _finished_elsewhere(run: RunSpec, runs_dir: Path) -> RunSpec | None:
+    """The same configuration as ``run`` finished on another device (a GPU session's run, say), as the spec
+    that addresses it, or None. The device is part of a run's address (its numbers are the device's), so
+    such a run lives in its own folder; the suite reuses it rather than computing the run again, and its
+    config.json and eval.json say where it ran."""
+    stem = run.dirname[: -len(run.key)]
+    for path in sorted(runs_dir.glob(f"{stem}*/job.json")):
+        try:
+            device = json.loads(path.read_text())["device"]
+        except (OSError, ValueError, KeyError, TypeError):
+            continue
+        if not isinstance(device, str) or device == run.device:
+            continue
+        twin = dataclasses.replace(run, device=device)
+        if path.parent.name == twin.dirname and train_job(twin, path.parent).is_done():
+            return twin
+    return None
+
+
 def plan(data: dict, store: Path) -> list[Job]:
     """Every job of the spec, in the order they may start: the first seed's training runs, the checks,
     the other seeds' runs, then analyses of runs (the runner starts an analysis as soon as its run is
@@ -506,7 +527,9 @@ def plan(data: dict, store: Path) -> list[Job]:
 
     runs = _train_grid(data, device, known)
     for run in runs:
-        jobs.append(train_job(run, store / "runs" / run.dirname))
+        job = train_job(run, store / "runs" / run.dirname)
+        twin = None if job.is_done() else _finished_elsewhere(run, store / "runs")
+        jobs.append(train_job(twin, store / "runs" / twin.dirname) if twin else job)
 
     check_args: list[list[str]] = []  # each check job's extra words, in order
     for i, block in enumerate(data.get("check", [])):

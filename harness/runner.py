@@ -297,9 +297,11 @@ def run_suite(
     launcher: str = "local",
     address: str | None = None,
     gpus_per_run: float = 0.25,
+    device: str | None = None,
 ) -> int:
     """Plan, run what is missing (on the local or the Ray launcher), write the tables and plots; 0 when
-    every job succeeded. The spec is a profile, a TOML file or ``spec``, one made in memory (``sweep``)."""
+    every job succeeded. The spec is a profile, a TOML file or ``spec``, one made in memory (``sweep``);
+    ``device``, where given, replaces its [suite] device."""
     stream = stream or sys.stdout  # the stdout of now, not of import time
     from harness.launchers import make_launcher
 
@@ -307,6 +309,8 @@ def run_suite(
         data, spec_path = check_spec(spec, "the sweep's spec"), "(made in memory by sweep)"
     else:
         data, spec_path = load_spec(profile, spec_file)
+    if device:
+        data = {**data, "suite": {**data["suite"], "device": device}}
     name = data["suite"]["name"]
     # absolute: a Ray worker on another node resolves the same path on the shared storage
     store = Path(store).resolve() / name

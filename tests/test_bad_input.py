@@ -218,6 +218,8 @@ CLI_CASES = [
         "for --launcher ray",
     ),
     ("bench unknown launcher", ["bench", "--profile", "smoke", "--launcher", "slurm"], None, "invalid choice"),
+    ("bench on an unknown device", ["bench", "--profile", "smoke", "--device", "tpu"], None, "unknown device"),
+    ("bench on a missing GPU", ["bench", "--profile", "smoke", "--device", "cuda"], "no_cuda", "no CUDA device"),
     (
         "sweep zero jobs",
         ["sweep", *ANT, "--algos", "shac", "--epochs", "1", "--out", "o", "--jobs", "0"],

@@ -7,6 +7,7 @@ landscape, tables and plots, as `tox -e bench` does at a larger scale.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -16,7 +17,7 @@ from pathlib import Path
 import pytest
 
 import backends
-from harness.bench import RunSpec, load_spec, plan
+from harness.bench import RunSpec, load_spec, plan, train_job
 from harness.results import RunError
 from harness.runner import run_suite
 
@@ -282,6 +283,37 @@ def test_finished_runs_are_reused_and_interrupted_ones_resumed(tmp_path):
     assert (victim / "eval.json").is_file()
     rows = [json.loads(line) for line in (victim / "metrics.jsonl").read_text().splitlines()]
     assert [r["epoch"] for r in rows] == [0, 1, 2]
+
+
+def _finished_at(run: RunSpec, store: Path, epochs: int | None = None) -> Path:
+    """A run folder as a suite leaves it once ``run`` trained ``epochs`` (default: all) and was evaluated,
+    its checkpoints not kept (as in a store committed to git)."""
+    from harness.runner import _write_job_file
+
+    job = train_job(run, store / "runs" / run.dirname)
+    _write_job_file(job)
+    done = run.epochs if epochs is None else epochs
+    (job.run_dir / "metrics.jsonl").write_text("".join(json.dumps({"epoch": e}) + "\n" for e in range(done)))
+    (job.run_dir / "eval.json").write_text(json.dumps(job.expect))
+    return job.run_dir
+
+
+def test_a_run_finished_on_another_device_is_reused_by_its_own_address(tmp_path):
+    """A GPU session's finished run stands in for the same configuration planned on the CPU (its folder,
+    so its provenance, is its own); an unfinished one does not, nor does one of another configuration."""
+    data = load_spec(spec_file=str(_write(tmp_path, POINTMASS_SPEC)))[0]
+    cpu = [j for j in plan(data, tmp_path) if j.kind == "train"]
+    on_gpu, half_done, other_config = (dataclasses.replace(j.run, device="cuda") for j in cpu[:3])
+    gpu_dir = _finished_at(on_gpu, tmp_path)
+    _finished_at(half_done, tmp_path, epochs=1)
+    _finished_at(dataclasses.replace(other_config, epochs=other_config.epochs + 1), tmp_path)
+    again = [j for j in plan(data, tmp_path) if j.kind == "train"]
+    assert again[0].run_dir == gpu_dir and again[0].run.device == "cuda" and again[0].is_done()
+    assert [j.run_dir for j in again[1:]] == [j.run_dir for j in cpu[1:]]  # the CPU's own addresses
+    assert not any(j.is_done() for j in again[1:])
+    # the run finished on the CPU too: its own address wins
+    cpu_dir = _finished_at(cpu[0].run, tmp_path)
+    assert next(j for j in plan(data, tmp_path) if j.kind == "train").run_dir == cpu_dir
 
 
 def test_a_resumed_runs_cost_counts_only_the_epochs_it_has_left(tmp_path):

@@ -793,6 +793,19 @@ def test_the_returns_table_gives_the_forward_velocity_over_seeds_where_evaluatio
     assert "| 0.3 (4 of 5 seeds) |" in returns_md  # IQM of the four that recorded it
 
 
+def test_tables_say_where_their_runs_trained_when_not_all_on_the_cpu(tmp_path):
+    for seed in range(2):
+        make_run(tmp_path / "runs", "ant", "newton", "shac", seed, 16, 1.0, [1.0] * EPOCHS)
+    cpu_only = write_bench_report(collect_runs(tmp_path / "runs"), [], tmp_path / "cpu", HEADER)
+    assert "Trained on" not in next(p for p in cpu_only if p.name == "returns.md").read_text()
+    gpu = make_run(tmp_path / "runs", "ant", "newton", "shac", 2, 16, 1.0, [1.0] * EPOCHS)
+    config = json.loads((gpu / "config.json").read_text())
+    (gpu / "config.json").write_text(json.dumps(config | {"device": "cuda"}))
+    mixed = write_bench_report(collect_runs(tmp_path / "runs"), [], tmp_path / "mixed", HEADER)
+    returns_md = next(p for p in mixed if p.name == "returns.md").read_text()
+    assert "Rests on 3 evaluated training runs" in returns_md and "Trained on cpu (2), cuda (1)" in returns_md
+
+
 def test_returns_against_h_compare_horizons_at_one_budget_only(tmp_path):
     """Rows exist only where one (task, backend, algo, N) has evaluated runs at two or more horizons with
     the same env steps per run (within 2%: epochs are whole numbers); a horizon at another budget is left

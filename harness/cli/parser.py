@@ -509,6 +509,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="runs, checks, logs and tables go to STORE/NAME, NAME the spec's suite name (default: %(default)s)",
     )
     _add(p, "bench", "jobs", "launcher", "address", "gpus_per_run")
+    p.add_argument(
+        "--device",
+        help="run the suite's jobs on DEVICE (cpu, cuda[:N]) instead of its [suite] device; a run finished on "
+        "one device is reused by a suite on another",
+    )
     p.add_argument("--dry-run", action="store_true", help="list the jobs, their state and estimated cost; run none")
     p.add_argument("--report-only", action="store_true", help="write the tables and plots from what is finished")
 

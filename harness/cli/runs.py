@@ -162,10 +162,13 @@ def cmd_sweep(args) -> int:
 def cmd_bench(args) -> int:
     from harness.runner import run_suite
 
+    if args.device:
+        _check_device(args.device)
     return run_suite(
         profile=args.profile,
         spec_file=args.spec,
         store=args.store,
+        device=args.device,
         jobs=args.jobs,
         dry_run=args.dry_run,
         report_only=args.report_only,

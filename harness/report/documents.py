@@ -173,14 +173,18 @@ def _velocity_cell(row: pd.Series) -> str:
 
 
 def rests_on_runs(runs: list[RunRecord], what: str = "training runs") -> str:
-    """The sentence saying what a table's numbers rest on: runs, groups, seeds, epochs, env steps."""
+    """The sentence saying what a table's numbers rest on: runs, groups, seeds, epochs, env steps, and the
+    devices they trained on where any was not the CPU (a suite reuses a run finished on another device)."""
     if not runs:
         return f"Rests on no {what}."
     seeds_per_group = Counter(r.group for r in runs).values()
+    devices = Counter(r.device or "cpu" for r in runs)
+    counts = ", ".join(f"{d} ({n})" for d, n in devices.most_common())
+    where = "" if set(devices) == {"cpu"} else f" Trained on {counts}: wall times are each device's."
     return (
         f"Rests on {len(runs)} {what} in {len(seeds_per_group)} (task, backend, algo, h, N, planned epochs) groups "
         f"with {fmt_range(seeds_per_group)} training seeds each, {fmt_range(r.epochs for r in runs)} epochs and "
-        f"{fmt_range(r.env_steps for r in runs)} env steps per run."
+        f"{fmt_range(r.env_steps for r in runs)} env steps per run.{where}"
     )
 
 

@@ -41,6 +41,7 @@ class RunRecord:
     landscape: dict | None = None
     commit: str | None = None  # the commit the run was trained at (config.json's provenance)
     planned_epochs: int | None = None  # config.json's epochs: what the run was asked for (``epochs``: what it did)
+    device: str | None = None  # where the run trained (config.json's device: cpu, cuda[:N])
 
     @property
     def base(self) -> str:
@@ -211,6 +212,7 @@ def load_run(run_dir: Path, stream=None) -> RunRecord | None:
         landscape=landscape,
         commit=(config.get("provenance") or {}).get("git_commit"),
         planned_epochs=_int_or_none(config.get("epochs", algo_cfg.get("max_epochs"))),
+        device=str(config.get("device", "cpu")),
     )
 
 

@@ -114,6 +114,11 @@ def relative_mean_change_with_ci(variant: Iterable[float], base: Iterable[float]
     return point, bounds[0], bounds[1]
 
 
+def _t_critical(dof: float) -> float:
+    """The two-sided critical value of Student's t at ``CONFIDENCE`` with ``dof`` degrees of freedom."""
+    return float(stats.t.ppf(1.0 - (1.0 - CONFIDENCE) / 2.0, dof))
+
+
 def _welch_margin(variant: np.ndarray, base: np.ndarray, ratio: float) -> float:
     """|t| - t_crit of Welch's two-sample t-test between ``variant`` and ``ratio`` x ``base`` (level 0.05,
     two-sided, Welch-Satterthwaite degrees of freedom): negative where the test accepts."""
@@ -124,7 +129,7 @@ def _welch_margin(variant: np.ndarray, base: np.ndarray, ratio: float) -> float:
         return -math.inf if variant.mean() == ratio * base.mean() else math.inf
     statistic = (variant.mean() - ratio * base.mean()) / math.sqrt(spread)
     dof = spread**2 / (var_v**2 / (variant.size - 1) + var_b**2 / (base.size - 1))
-    return abs(statistic) - float(stats.t.ppf(1.0 - (1.0 - CONFIDENCE) / 2.0, dof))
+    return abs(statistic) - _t_critical(dof)
 
 
 def mean_with_t_ci(values: Iterable[float]) -> tuple[float, float, float]:
@@ -136,7 +141,7 @@ def mean_with_t_ci(values: Iterable[float]) -> tuple[float, float, float]:
     mean = float(x.mean())
     if x.size < 2:
         return mean, math.nan, math.nan
-    margin = float(stats.t.ppf(1.0 - (1.0 - CONFIDENCE) / 2.0, x.size - 1)) * float(x.std(ddof=1)) / math.sqrt(x.size)
+    margin = _t_critical(x.size - 1) * float(x.std(ddof=1)) / math.sqrt(x.size)
     return mean, mean - margin, mean + margin
 
 
