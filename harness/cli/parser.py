@@ -180,6 +180,7 @@ VERB_DEFAULTS: dict[str, dict] = {
     "fd-schemes": {"num_envs": 8, "windows": 3},
     "peer": {"windows": 5},
     "scaling": {"horizon": 8, "windows": 3},
+    "bench": {"device": None},  # the spec's [suite] device unless given
 }
 
 # what a shared flag means in the verbs where FLAGS' words would not be true, in one place
@@ -199,6 +200,10 @@ VERB_HELP: dict[str, dict[str, str]] = {
         "out": "the evaluation file to write (default: RUN/eval.json)",
     },
     "report": {"out": "prefix of the tables (.md, .csv, _by_algo.csv) and the curves (.png)"},
+    "bench": {
+        "device": "run the suite's jobs on this device (cpu, cuda[:N]) instead of its [suite] device; a run "
+        "finished on one device is reused by a suite on another",
+    },
     "sweep": {"epochs": "epochs of every run", "out": "the sweep's directory: its runs, logs, tables and plots"},
     "grad-growth": {"windows": "windows of the policy's trajectory replayed open-loop"},
     "grad-paths": {
@@ -508,12 +513,7 @@ def build_parser() -> argparse.ArgumentParser:
         default="results/bench",
         help="runs, checks, logs and tables go to STORE/NAME, NAME the spec's suite name (default: %(default)s)",
     )
-    _add(p, "bench", "jobs", "launcher", "address", "gpus_per_run")
-    p.add_argument(
-        "--device",
-        help="run the suite's jobs on DEVICE (cpu, cuda[:N]) instead of its [suite] device; a run finished on "
-        "one device is reused by a suite on another",
-    )
+    _add(p, "bench", "jobs", "launcher", "address", "gpus_per_run", "device")
     p.add_argument("--dry-run", action="store_true", help="list the jobs, their state and estimated cost; run none")
     p.add_argument("--report-only", action="store_true", help="write the tables and plots from what is finished")
 
