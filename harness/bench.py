@@ -89,18 +89,22 @@ GRADIENT_CHECK_KINDS = (
 ONLY_BACKEND = {"fd-schemes": "mujoco_warp"}
 
 # Seconds per env step of a training epoch (simulation with gradients and the updates) on this 2-core
-# CPU, from the runs in results/ (docs/cluster.md). Only the first ETA uses them: finished jobs correct them.
+# CPU, from the runs in results/ (docs/cluster.md); the Newton Go2's at 64 envs from its throughput
+# against the Ant's (results/bench/perf/throughput.md), until a run of it at that size is committed.
+# Only the first ETA uses them: finished jobs correct them.
 _SECONDS_PER_ENV_STEP = {
     ("newton", "ant"): 1.2e-3,
-    ("newton", "go2"): 5e-3,
+    ("newton", "go2"): 2.5e-3,
     ("newton", "soft_jumper"): 2e-2,
     ("mujoco_warp", "ant"): 4e-2,
     ("mujoco_warp", "go2"): 6e-2,
     ("mujoco_warp", "soft_jumper"): 3e3,
 }
+# Seconds per env step an evaluation counts (every seed's envs for a whole episode, before and after
+# training): the protocol's Ant evaluations; the Go2's scaled by its forward throughput against the Ant's.
 _SECONDS_PER_EVAL_STEP = {
-    ("newton", "ant"): 3e-4,
-    ("newton", "go2"): 1e-3,
+    ("newton", "ant"): 1.25e-4,
+    ("newton", "go2"): 2.3e-4,
     ("newton", "soft_jumper"): 4e-3,
     ("mujoco_warp", "ant"): 5e-3,
     ("mujoco_warp", "go2"): 6e-3,
