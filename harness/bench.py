@@ -496,9 +496,9 @@ def train_job(run: RunSpec, run_dir: Path) -> Job:
     )
 
 
-def _finished_elsewhere(run: RunSpec, runs_dir: Path) -> RunSpec | None:
-    """The same configuration as ``run`` finished on another device (a GPU session's run, say), as the spec
-    that addresses it, or None. The device is part of a run's address (its numbers are the device's), so
+def _finished_elsewhere(run: RunSpec, runs_dir: Path) -> Job | None:
+    """The same configuration as ``run`` finished on another device (a GPU session's run, say), as the job
+    that reuses it, or None. The device is part of a run's address (its numbers are the device's), so
     such a run lives in its own folder; the suite reuses it rather than computing the run again, and its
     config.json and eval.json say where it ran."""
     stem = run.dirname[: -len(run.key)]
@@ -510,8 +510,8 @@ def _finished_elsewhere(run: RunSpec, runs_dir: Path) -> RunSpec | None:
         if not isinstance(device, str) or device == run.device:
             continue
         twin = dataclasses.replace(run, device=device)
-        if path.parent.name == twin.dirname and train_job(twin, path.parent).is_done():
-            return twin
+        if path.parent.name == twin.dirname and (job := train_job(twin, path.parent)).is_done():
+            return job
     return None
 
 
@@ -532,8 +532,7 @@ def plan(data: dict, store: Path) -> list[Job]:
     runs = _train_grid(data, device, known)
     for run in runs:
         job = train_job(run, store / "runs" / run.dirname)
-        twin = None if job.is_done() else _finished_elsewhere(run, store / "runs")
-        jobs.append(train_job(twin, store / "runs" / twin.dirname) if twin else job)
+        jobs.append(job if job.is_done() else _finished_elsewhere(run, store / "runs") or job)
 
     check_args: list[list[str]] = []  # each check job's extra words, in order
     for i, block in enumerate(data.get("check", [])):

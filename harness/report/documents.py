@@ -178,7 +178,7 @@ def rests_on_runs(runs: list[RunRecord], what: str = "training runs") -> str:
     if not runs:
         return f"Rests on no {what}."
     seeds_per_group = Counter(r.group for r in runs).values()
-    devices = Counter(r.device or "cpu" for r in runs)
+    devices = Counter(r.device for r in runs)
     counts = ", ".join(f"{d} ({n})" for d, n in devices.most_common())
     where = "" if set(devices) == {"cpu"} else f" Trained on {counts}: wall times are each device's."
     return (

@@ -41,7 +41,7 @@ class RunRecord:
     landscape: dict | None = None
     commit: str | None = None  # the commit the run was trained at (config.json's provenance)
     planned_epochs: int | None = None  # config.json's epochs: what the run was asked for (``epochs``: what it did)
-    device: str | None = None  # where the run trained (config.json's device: cpu, cuda[:N])
+    device: str = "cpu"  # where the run trained (config.json's device: cpu, cuda[:N])
 
     @property
     def base(self) -> str:
