@@ -319,6 +319,56 @@ def test_the_go2_forward_velocity_claim_reads_each_runs_velocity_and_needs_a_mov
     assert _row(table, num_envs=8)["verdict"].startswith("no ratio: the base's mean is")
 
 
+def test_forward_locomotion_reads_each_seeds_final_velocity_against_the_speed_and_the_papers_word(tmp_path):
+    from harness.report.claims import LOCOMOTION_SPEED, locomotion_table
+
+    velocities = {  # (algo, num_envs) -> final velocity per seed (None: the evaluation recorded none)
+        ("shac", 4): [0.02, -0.05, 0.01],  # stands or drifts: does not move forward
+        ("shac-tdadpt", 4): [0.9, 1.1, 1.0],  # walks
+        ("shac", 8): [0.0, 2.0],  # one seed walks, one does not: the CI holds the speed
+        ("shac-tdfixed", 8): [None, None],  # nothing recorded: no row
+    }
+    for (algo, num_envs), finals in velocities.items():
+        for seed, velocity in enumerate(finals):
+            run = make_run(tmp_path, "go2", "newton", algo, seed, 16, 100.0, [1.0] * 6, num_envs=num_envs)
+            payload = _eval_payload(100.0)
+            if velocity is not None:
+                payload["initial"]["mean_forward_velocity"] = 0.05 * seed
+                payload["final"]["mean_forward_velocity"] = velocity
+            (run / "eval.json").write_text(json.dumps(payload))
+    table = locomotion_table([load_run(path) for path in collect_runs(tmp_path)])
+    assert sorted(zip(table["algo"], table["num_envs"], strict=True)) == [
+        ("shac", 4),
+        ("shac", 8),
+        ("shac-tdadpt", 4),
+    ]
+    still = _row(table, algo="shac", num_envs=4)
+    finals = np.array(velocities[("shac", 4)])
+    low, high = stats.t.interval(0.95, 2, loc=finals.mean(), scale=stats.sem(finals))
+    assert still["final_velocity"] == pytest.approx(finals.mean())
+    assert (still["final_velocity_ci_low"], still["final_velocity_ci_high"]) == pytest.approx((low, high))
+    assert high < LOCOMOTION_SPEED and still["verdict"] == "does not move forward"
+    assert still["untrained_velocity"] == pytest.approx(0.05) and still["seeds_moving"] == 0
+    # the paper says the Go2's SHAC does not acquire forward locomotion and its SHAC-TDAdpt improves on it
+    assert (still["paper_says"], still["paper_verdict"]) == ("does not move", "confirmed")
+    walking = _row(table, algo="shac-tdadpt", num_envs=4)
+    assert walking["verdict"] == "moves forward" and walking["seeds_moving"] == 3
+    assert (walking["paper_says"], walking["paper_verdict"]) == ("moves", "confirmed")
+    split = _row(table, algo="shac", num_envs=8)
+    assert split["seeds_moving"] == 1 and split["verdict"] == "undecided" and split["paper_verdict"] == "undecided"
+
+
+@pytest.mark.parametrize(
+    ("low", "high", "verdict"),
+    [(0.3, 0.9, "moves forward"), (-0.1, 0.2, "does not move forward"), (0.1, 0.4, "undecided")]
+    + [(math.nan, math.nan, "undecided (under 2 seeds)")],
+)
+def test_the_locomotion_verdict_reads_its_ci_against_the_speed(low, high, verdict):
+    from harness.report.claims import locomotion_verdict
+
+    assert locomotion_verdict(low, high, speed=0.25) == verdict
+
+
 def test_the_learned_lambdas_course_is_judged_over_finished_adaptive_runs(suite, tmp_path):
     from harness.report.claims import lambda_course_table
 

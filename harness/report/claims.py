@@ -1,5 +1,6 @@
 """The paper's claims of improvement (final return, the Go2's forward velocity), each judged against the
-runs that test it, and its claim that the learned lambda falls over training (:func:`lambda_course_table`).
+runs that test it, its claim that the learned lambda falls over training (:func:`lambda_course_table`),
+and its claims of which policies move forward at all (:func:`locomotion_table`).
 
 A claim says a TD-lambda variant beats its base by about a given share of the base's mean at the paper's
 budget (ARE, Section V: Fig. 5 for the Ant, Fig. 9 and the abstract for the Go2), in final return or, for
@@ -48,6 +49,26 @@ PAPER_CLAIMS = (
     Claim(
         "go2", "shac-tdadpt", "shac", 1.00, "Fig. 9's text (SHAC: no forward locomotion), abstract", "forward velocity"
     ),
+)
+
+
+@dataclass(frozen=True)
+class LocomotionClaim:
+    """The paper says ``algo`` on ``task`` does (``moves``) or does not acquire forward locomotion."""
+
+    task: str
+    algo: str
+    moves: bool
+    source: str
+
+
+# A policy moves forward when its mean forward velocity reaches this (m/s): a slow walk for a legged robot
+# of the Go2's or the Ant's size, and above the drift of a policy that stands still or falls over.
+LOCOMOTION_SPEED = 0.25
+
+PAPER_LOCOMOTION = (
+    LocomotionClaim("go2", "shac", False, 'Sec. V-E ("fails to acquire meaningful forward locomotion")'),
+    LocomotionClaim("go2", "shac-tdadpt", True, "Sec. V-E (a significant improvement over that SHAC)"),
 )
 
 
@@ -156,3 +177,59 @@ def lambda_course_table(runs: list[RunRecord]) -> pd.DataFrame:
     columns = ["task", "backend", "num_envs", "epochs", "horizon", "env_steps", "algo", "seeds", "lambda_first"]
     columns += ["lambda_final_mean", "lambda_final_std", "change", "change_ci_low", "change_ci_high"]
     return pd.DataFrame(rows, columns=columns + ["falling_share", "verdict", "source"])
+
+
+def locomotion_verdict(low: float, high: float, speed: float = LOCOMOTION_SPEED) -> str:
+    """What a 95% CI [low, high] of the seeds' mean forward velocity says: the policies move forward when
+    it lies above ``speed``, do not when it lies below, and it is undecided when it holds ``speed``."""
+    if math.isnan(low) or math.isnan(high):
+        return "undecided (under 2 seeds)"
+    if low > speed:
+        return "moves forward"
+    return "does not move forward" if high < speed else "undecided"
+
+
+def _paper_locomotion_verdict(claim: LocomotionClaim | None, verdict: str) -> str:
+    """The paper's claim (if it makes one for the row) read against the row's verdict."""
+    if claim is None:
+        return ""
+    if verdict not in ("moves forward", "does not move forward"):
+        return "undecided"
+    return "confirmed" if (verdict == "moves forward") == claim.moves else "contradicted"
+
+
+def locomotion_table(runs: list[RunRecord], claims=PAPER_LOCOMOTION) -> pd.DataFrame:
+    """Whether each algorithm's final policies move forward: per setting and algorithm, over the evaluated
+    runs that recorded a forward velocity, the untrained and the final policies' mean velocity (mean over
+    seeds, the final one with its 95% t CI), how many seeds reach :data:`LOCOMOTION_SPEED`, the verdict
+    (:func:`locomotion_verdict`) and, where the paper says whether the algorithm acquires forward
+    locomotion on the task, that claim's verdict."""
+    recorded = [r for r in runs if r.evaluation is not None and math.isfinite(r.final_forward_velocity)]
+    said = {(c.task, c.algo): c for c in claims}
+    rows = []
+    for (task, backend, num_envs, planned, horizon, algo), members in by_group(recorded).items():
+        final = np.array([r.final_forward_velocity for r in members], dtype=float)
+        untrained = np.array([r.evaluation["initial"].get("mean_forward_velocity", math.nan) for r in members])
+        mean, low, high = mean_with_t_ci(final)
+        verdict = locomotion_verdict(low, high)
+        claim = said.get((task, algo))
+        rows.append(
+            _setting(task, backend, num_envs, planned, horizon)
+            | {
+                "env_steps": value_or_range(r.env_steps for r in members),
+                "algo": algo,
+                "seeds": final.size,
+                "untrained_velocity": float(np.mean(untrained)),
+                "final_velocity": mean,
+                "final_velocity_ci_low": low,
+                "final_velocity_ci_high": high,
+                "seeds_moving": int(np.sum(final >= LOCOMOTION_SPEED)),
+                "verdict": verdict,
+                "paper_says": "" if claim is None else ("moves" if claim.moves else "does not move"),
+                "paper_verdict": _paper_locomotion_verdict(claim, verdict),
+                "source": "" if claim is None else claim.source,
+            }
+        )
+    columns = ["task", "backend", "num_envs", "epochs", "horizon", "env_steps", "algo", "seeds"]
+    columns += ["untrained_velocity", "final_velocity", "final_velocity_ci_low", "final_velocity_ci_high"]
+    return pd.DataFrame(rows, columns=columns + ["seeds_moving", "verdict", "paper_says", "paper_verdict", "source"])

@@ -14,7 +14,7 @@ from pathlib import Path
 import pandas as pd
 
 from harness.report.aggregate import aggregate_table
-from harness.report.claims import claims_table, lambda_course_table
+from harness.report.claims import LOCOMOTION_SPEED, claims_table, lambda_course_table, locomotion_table
 from harness.report.formatting import fmt, fmt_ci, fmt_count, fmt_pct, fmt_range, fmt_verdict, is_missing
 from harness.report.records import CheckRecord, RunRecord
 from harness.report.stats import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, EFFECTS
@@ -285,6 +285,23 @@ def returns_document(runs: list[RunRecord]) -> Table:
                 csv_suffix="_lambda",
                 empty="no adaptive-lambda algorithm has evaluated runs",
             ),
+            Section(
+                locomotion_table(runs),
+                _key_columns("task", "backend", "num_envs", "epochs", "horizon", "env_steps", "algo", "seeds")
+                + [
+                    ("untrained velocity m/s (mean)", "untrained_velocity"),
+                    ("final velocity m/s (mean)", "final_velocity"),
+                    ("95% CI", lambda r: fmt_ci(r["final_velocity_ci_low"], r["final_velocity_ci_high"])),
+                    (f"seeds at >= {LOCOMOTION_SPEED} m/s", lambda r: f"{r['seeds_moving']} of {r['seeds']}"),
+                    ("verdict", "verdict"),
+                    ("paper says", "paper_says"),
+                    ("paper's claim", "paper_verdict"),
+                    ("paper", "source"),
+                ],
+                heading="Forward locomotion: do the final policies move forward?",
+                csv_suffix="_locomotion",
+                empty="no evaluation recorded a forward velocity",
+            ),
         ],
         [
             "IQM: interquartile mean over training seeds (`scipy.stats.trim_mean(x, 0.25)`, rliable's "
@@ -330,6 +347,16 @@ def returns_document(runs: list[RunRecord]) -> Table:
             "over seeds with the 95% CI of a one-sample t-test; epochs lambda fell: the share of epochs whose "
             "update lowered it, averaged over seeds. Verdict: confirmed when the CI lies below 0, contradicted "
             "when above, undecided otherwise. Its course per epoch: lambda_alpha.png.",
+            f"Forward locomotion: a policy moves forward when its forward velocity (as above) reaches "
+            f"{LOCOMOTION_SPEED} m/s, a slow walk for a legged robot of the Go2's or the Ant's size and above the "
+            "drift of a policy that stands still or falls over (the untrained policies' column shows that "
+            "drift). Per setting and algorithm, over the training seeds whose evaluation recorded a velocity: "
+            "the untrained and the final policies' velocity (mean over seeds), the final one's 95% CI of a "
+            "one-sample t-test, and the seeds that reach the speed. Verdict: moves forward when the CI lies "
+            "above the speed, does not when below, undecided otherwise. Where the paper says whether an "
+            "algorithm acquires forward locomotion on a task (Sec. V-E: the Go2's SHAC does not, at the "
+            "paper's budget; its SHAC-TDAdpt improves on that markedly), the claim is confirmed when the "
+            "verdict agrees, contradicted when it disagrees.",
             "Runs without eval.json (unfinished) are left out of these tables.",
         ],
         _run_commits(evaluated),
