@@ -326,6 +326,7 @@ def test_forward_locomotion_reads_each_seeds_final_velocity_against_the_speed_an
         ("shac", 4): [0.02, -0.05, 0.01],  # stands or drifts: does not move forward
         ("shac-tdadpt", 4): [0.9, 1.1, 1.0],  # walks
         ("shac", 8): [0.0, 2.0],  # one seed walks, one does not: the CI holds the speed
+        ("shac", 16): [1.0, 1.1, 1.2],  # walks, where the paper says the Go2's SHAC does not
         ("shac-tdfixed", 8): [None, None],  # nothing recorded: no row
     }
     for (algo, num_envs), finals in velocities.items():
@@ -340,6 +341,7 @@ def test_forward_locomotion_reads_each_seeds_final_velocity_against_the_speed_an
     assert sorted(zip(table["algo"], table["num_envs"], strict=True)) == [
         ("shac", 4),
         ("shac", 8),
+        ("shac", 16),
         ("shac-tdadpt", 4),
     ]
     still = _row(table, algo="shac", num_envs=4)
@@ -356,6 +358,8 @@ def test_forward_locomotion_reads_each_seeds_final_velocity_against_the_speed_an
     assert (walking["paper_says"], walking["paper_verdict"]) == ("moves", "confirmed")
     split = _row(table, algo="shac", num_envs=8)
     assert split["seeds_moving"] == 1 and split["verdict"] == "undecided" and split["paper_verdict"] == "undecided"
+    against = _row(table, algo="shac", num_envs=16)
+    assert against["verdict"] == "moves forward" and against["paper_verdict"] == "contradicted"
 
 
 @pytest.mark.parametrize(
