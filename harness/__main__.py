@@ -1,8 +1,9 @@
 """``python -m harness``: the command line, with signals handled from the first line on.
 
-Until a training loop takes over SIGINT/SIGTERM (to finish its epoch and checkpoint), a signal ends
-the process at once with one line and exit code 128 + signal: nothing is half-written then, because
-every file this program writes outside an epoch is replaced atomically.
+Until a verb takes over SIGINT/SIGTERM (a training loop, to finish its epoch and checkpoint; ``bench-run``,
+to release its run's claim), a signal ends the process at once with one line and exit code 128 +
+signal: nothing is half-written then, because every file this program writes outside an epoch is
+replaced atomically.
 """
 
 import os

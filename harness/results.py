@@ -21,12 +21,17 @@ class RunError(RuntimeError):
 
 
 class RunStopped(RuntimeError):
-    """Training stopped on a signal after checkpointing at an epoch boundary (resumable)."""
+    """A run stopped on a signal, resumably: in training after checkpointing at an epoch boundary
+    (``epoch``), or outside training (``epoch`` None: setting up or evaluating, where nothing is written
+    but whole files)."""
 
-    def __init__(self, run_dir, epoch: int, signum: int):
+    def __init__(self, run_dir, epoch: int | None, signum: int):
         self.signum = signum
         name = signal.Signals(signum).name
-        super().__init__(f"{name}: stopped at epoch {epoch} with a checkpoint in {run_dir}; continue with --resume")
+        if epoch is None:
+            super().__init__(f"{name}: stopped {run_dir} outside its training; run the same command to continue")
+        else:
+            super().__init__(f"{name}: stopped at epoch {epoch} with a checkpoint in {run_dir}; continue with --resume")
 
 
 def _git_commit() -> str | None:

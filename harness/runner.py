@@ -11,6 +11,7 @@ At the end the report (:mod:`harness.report`) is written from whatever is finish
 
 from __future__ import annotations
 
+import contextlib
 import json
 import signal
 import sys
@@ -227,9 +228,48 @@ def bench_run(run_dir: str | Path, stream=None) -> Path:
     if not path.is_file():
         raise RunError(f"{run_dir} has no job.json: bench-run runs directories planned by `bench`")
     job = json.loads(path.read_text())
-    with Claim(run_dir, stream=stream):  # one worker writes a run; the others wait (or take over a dead one's)
+    with _signals_unwind(run_dir), Claim(run_dir, stream=stream):  # one worker writes a run; the others wait
         _train_and_evaluate(run_dir, job, stream)
     return run_dir
+
+
+class _Signalled(BaseException):
+    """Raised by a signal handler: a BaseException, so that no ``except Exception`` on the way (a file
+    loader's, say) takes it for an error of its own."""
+
+    def __init__(self, signum: int):
+        super().__init__(signum)
+        self.signum = signum
+
+
+@contextlib.contextmanager
+def _signals_unwind(run_dir: Path):
+    """SIGINT/SIGTERM end ``bench-run`` by an exception (:class:`RunStopped`) rather than at once, so that
+    the run's claim is released on the way out: another worker then takes the run without waiting for
+    the claim to go stale. Training takes the signals over while it runs (finish the epoch, checkpoint);
+    a second signal stops at once, as everywhere."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous: dict = {}
+
+    def handle(signum, frame):
+        stop_now = previous[signum]
+        if stopping and callable(stop_now):
+            stop_now(signum, frame)
+        stopping.append(signum)
+        raise _Signalled(signum)
+
+    stopping: list[int] = []
+    try:
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            previous[signum] = signal.signal(signum, handle)
+        yield
+    except _Signalled as exc:
+        raise RunStopped(run_dir, None, exc.signum) from None
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
 
 
 def _evaluated(run_dir: Path, ev: dict) -> bool:

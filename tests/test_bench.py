@@ -450,6 +450,34 @@ def test_ctrl_c_stops_the_suite_resumably(tmp_path):
         assert (run / "eval.json").is_file()
 
 
+@POINTMASS
+@pytest.mark.parametrize("signum", ["SIGINT", "SIGTERM"])
+def test_a_signal_during_the_evaluation_releases_the_runs_claim(tmp_path, signum):
+    """A run stopped while it evaluates exits 128 + signal and leaves no claim behind (another worker then
+    takes the run at once, even from another machine, instead of waiting for the claim to go stale),
+    no evaluation file and no half-written file."""
+    import signal
+
+    from harness.runner import _write_job_file
+
+    spec = POINTMASS_SPEC.replace("seeds = [0, 1]", "seeds = [0]").replace("horizons = [4, 8]", "horizons = [4]")
+    spec = spec.replace('algos = ["shac", "shac-tdadpt"]', 'algos = ["shac"]').replace("seeds = 1", "seeds = 1000")
+    jobs = plan(load_spec(spec_file=str(_write(tmp_path, spec)))[0], tmp_path / "store")
+    (job,) = [j for j in jobs if j.kind == "train"]
+    _write_job_file(job)
+    command = [sys.executable, "-m", "harness", "bench-run", str(job.run_dir)]
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env())
+    for line in proc.stdout:  # the evaluation reports each seed it finished
+        if line.startswith("  eval "):
+            break
+    proc.send_signal(getattr(signal, signum))
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 128 + getattr(signal, signum), out[-2000:] + err[-2000:]
+    assert not (job.run_dir / "eval.json").exists(), "the evaluation finished before the signal: nothing was tested"
+    assert not list(job.run_dir.glob(".claim.*")), "the stopped run kept its claim"
+    assert not list(job.run_dir.glob(".*.tmp")), "a half-written file was left behind"
+
+
 def test_a_killed_suite_takes_its_jobs_down_resumably(tmp_path):
     """SIGKILL to the suite, which cannot pass anything on: its jobs still stop at an epoch boundary with a
     checkpoint instead of training on unseen, and the same command then finishes every run exactly once."""
