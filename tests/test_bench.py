@@ -67,7 +67,7 @@ def test_every_shipped_profile_plans(tmp_path):
     # the paper's protocol: 6 algorithms x 3 tasks x 10 seeds x 5 horizons on Newton, 6 x 2 x 10 on MuJoCo-Warp
     assert counts["paper"] == 6 * 3 * 10 * 5 + 6 * 2 * 10
     assert counts["smoke"] < counts["standard"] < counts["paper"]
-    assert counts["protocol"] == 3 * 5 + 2 * 5
+    assert counts["protocol"] == 3 * 5 + 2 * 5 + 3 * 5  # the Ant SHAC family, the Go2, the Ant SAPO family
 
 
 def test_block_order_runs_each_blocks_seeds_before_the_next_block(tmp_path):
