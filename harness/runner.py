@@ -252,6 +252,7 @@ def _signals_unwind(run_dir: Path):
         yield
         return
     previous: dict = {}
+    stopping: list[int] = []
 
     def handle(signum, frame):
         stop_now = previous[signum]
@@ -260,7 +261,6 @@ def _signals_unwind(run_dir: Path):
         stopping.append(signum)
         raise _Signalled(signum)
 
-    stopping: list[int] = []
     try:
         for signum in (signal.SIGINT, signal.SIGTERM):
             previous[signum] = signal.signal(signum, handle)
