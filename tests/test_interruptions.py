@@ -21,7 +21,7 @@ from harness.train import WALL_TIME_FIELDS
 
 pytestmark = pytest.mark.skipif("pointmass" not in backends.available(), reason="the point-mass plug-in is absent")
 
-EPOCHS = 10
+EPOCHS = 16  # enough epochs that the kills land in training, also on a fast idle machine
 TRAIN = ["--task", "pointmass", "--backend", "pointmass", "--algo", "shac-tdadpt", "--num-envs", "8"]
 TRAIN += ["--horizon", "8", "--critic-iterations", "1", "--seed", "4"]
 WALL = set(WALL_TIME_FIELDS)
