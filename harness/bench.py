@@ -13,7 +13,11 @@
   AlgoConfig field under ``[train.hyperparameters]``, adapter options per backend under
   ``[train.backend_options.BACKEND]`` (``--backend-option``); ``[train.per_task.TASK]`` overrides
   ``epochs``, ``num_envs``, ``horizons``, ``seeds``, ``preset`` or hyperparameters for one task, and
-  ``[train.eval]`` the evaluation protocol for the block (``seeds = 0``: no evaluation);
+  ``[train.eval]`` the evaluation protocol for the block (``seeds = 0``: no evaluation); ``sequential =
+  true``: the block's ``seeds`` are the most the pre-registered group-sequential design
+  (:mod:`harness.report.sequential`) may use, and the suite plans the first as many of them as the design
+  wants for each algorithm's claims (5 before the first look, 10 where a claim continues), and every run
+  already started (:func:`_sequential_design`);
 * ``[[check]]``: ``kind`` (gradcheck, throughput, crosscheck, parity, contact-jacobians, grad-paths, and
   the performance kinds scaling, fd-schemes, solver-probe and peer), ``backends`` (for ``peer``: the
   peer simulators, ``rewarped``), ``tasks`` and the verb's extra ``args`` (a list of command-line
@@ -278,14 +282,15 @@ class RunSpec:
         return {"seeds": self.eval_seeds, "num_envs": self.eval_num_envs, "max_steps": self.eval_max_steps}
 
 
-def _train_grid(data: dict, device: str, known: dict) -> list[RunSpec]:
+def _train_blocks(data: dict, device: str, known: dict) -> list[list[tuple[int, RunSpec]]]:
+    """Each [[train]] block's runs, seed-major, every one with its seed's place in the block's seed list
+    for its task (a sequential block plans a prefix of that list: :func:`_sequential_design`)."""
     ev = data.get("eval", {})
-    runs: list[RunSpec] = []
-    seen: set[str] = set()
+    blocks: list[list[tuple[int, RunSpec]]] = []
     for i, block in enumerate(data.get("train", [])):
         where = f"[[train]] #{i + 1}"
         block_eval = {**ev, **block.get("eval", {})}
-        block_runs: list[RunSpec] = []
+        block_runs: list[tuple[int, RunSpec]] = []
         options = {b: tuple(sorted(opts.items())) for b, opts in block.get("backend_options", {}).items()}
         per_task = block.get("per_task", {})
         for backend in _names(block["backends"], f"{where} backends"):
@@ -294,7 +299,7 @@ def _train_grid(data: dict, device: str, known: dict) -> list[RunSpec]:
                 preset = _preset(task, merged.get("preset"), where)
                 hyper = {**block.get("hyperparameters", {}), **per_task.get(task, {}).get("hyperparameters", {})}
                 for algo in _names(block["algos"], f"{where} algos"):
-                    for seed in _names(merged.get("seeds", [0]), f"{where} seeds"):
+                    for rank, seed in enumerate(_names(merged.get("seeds", [0]), f"{where} seeds")):
                         for horizon in _names(merged.get("horizons", [32]), f"{where} horizons"):
                             run = RunSpec(
                                 task=task,
@@ -316,11 +321,23 @@ def _train_grid(data: dict, device: str, known: dict) -> list[RunSpec]:
                                 run.algo_config()
                             except (ValueError, TypeError) as exc:
                                 raise RunError(f"{where}: bad configuration for {algo} on {task}: {exc}") from None
-                            block_runs.append(run)
+                            block_runs.append((rank, run))
         # seed-major order: wherever a long suite stops, every algorithm has the same number of seeds
         order = {name: i for i, name in enumerate(known["algos"])}
-        block_runs.sort(key=lambda r: (r.seed, r.horizon, order[r.algo]))
-        for run in block_runs:
+        block_runs.sort(key=lambda pair: (pair[1].seed, pair[1].horizon, order[pair[1].algo]))
+        blocks.append(block_runs)
+    return blocks
+
+
+def _train_grid(data: dict, blocks: list[list[tuple[int, RunSpec]]], keep=None) -> list[RunSpec]:
+    """The training runs of the spec's blocks (:func:`_train_blocks`) in the order they start, each once;
+    ``keep(block_index, rank, run)``, where given, says which runs of a block are planned."""
+    runs: list[RunSpec] = []
+    seen: set[str] = set()
+    for i, block_runs in enumerate(blocks):
+        for rank, run in block_runs:
+            if keep is not None and not keep(i, rank, run):
+                continue
             if run.key not in seen:  # the same run listed twice (two blocks) is one run
                 seen.add(run.key)
                 runs.append(run)
@@ -515,10 +532,120 @@ def _finished_elsewhere(run: RunSpec, runs_dir: Path) -> Job | None:
     return None
 
 
-def plan(data: dict, store: Path) -> list[Job]:
+def _resolved(run: RunSpec, runs_dir: Path) -> Job:
+    """The job of ``run``: its own folder's, or a finished twin's from another device
+    (:func:`_finished_elsewhere`)."""
+    job = train_job(run, runs_dir / run.dirname)
+    return job if job.is_done() else _finished_elsewhere(run, runs_dir) or job
+
+
+def _started(job: Job) -> bool:
+    """Whether a run's folder holds anything of it: finished, in flight, or stopped and resumable."""
+    return job.is_done() or any((job.run_dir / name).is_file() for name in ("job.json", "config.json", "metrics.jsonl"))
+
+
+def _design_key(run: RunSpec) -> tuple:
+    """The group the report pools ``run`` in (:attr:`harness.report.records.RunRecord.group`, labels as the
+    report makes them): the key of :func:`harness.report.claims.seeds_wanted`."""
+    from harness.report.records import backend_label, task_label
+
+    task = task_label(run.task, {"physics_record": {"preset": run.preset}})
+    backend = backend_label(run.backend, {"backend_options": dict(run.backend_options)})
+    return (task, backend, run.num_envs, run.epochs, run.horizon, run.algo)
+
+
+def _sequential_design(data: dict, blocks: list[list[tuple[int, RunSpec]]], runs_dir: Path):
+    """Which runs of the spec's ``sequential = true`` blocks to plan, as ``keep(block_index, rank, run)``
+    for :func:`_train_grid`, and lines that say why (one per claim the block tests, one per setting).
+
+    The pre-registered design (:mod:`harness.report.sequential`, docs/statistics.md) decides how many seeds
+    a claim gets: a sequential block's seed list is the most it may use, and seed s of an algorithm is
+    planned when s is among the first n of the list, n the seeds the design wants for the algorithm's
+    setting (:func:`harness.report.claims.seeds_wanted`; the first look's where none of the algorithm's
+    claims has an evaluated pair yet). The design reads the evaluated runs of the spec's whole grid that
+    share the block's hyperparameters (an ablation's runs, whose hyperparameters differ, are no seeds of
+    the algorithm's claims). A run that has started (finished, in flight or stopped) is always planned:
+    none is orphaned. The design is read when the suite is planned; runs it wants later are planned by
+    the next ``bench`` of the spec."""
+    from harness.report import claims as paper
+    from harness.report.records import load_run
+    from harness.report.sequential import LOOKS
+
+    jobs: dict[str, Job] = {}  # run key -> its job (the first block's, as the grid keeps it)
+    for block_runs in blocks:
+        for _, run in block_runs:
+            if run.key not in jobs:
+                jobs[run.key] = _resolved(run, runs_dir)
+    records = {}  # run key -> RunRecord of an evaluated run
+    for key, job in jobs.items():
+        if (job.run_dir / "eval.json").is_file() and (record := load_run(job.run_dir)) is not None:
+            if record.evaluation is not None:
+                records[key] = record
+    designs: dict[tuple, tuple] = {}  # hyperparameters -> (seeds wanted by group, the claims table or None)
+
+    def design(hyperparameters: tuple) -> tuple:
+        if hyperparameters not in designs:
+            mine = [r for key, r in records.items() if jobs[key].run.hyperparameters == hyperparameters]
+            designs[hyperparameters] = (paper.seeds_wanted(mine), paper.claims_table(mine)) if mine else ({}, None)
+        return designs[hyperparameters]
+
+    def wanted(run: RunSpec) -> int:
+        return int(design(run.hyperparameters)[0].get(_design_key(run), LOOKS[0]))
+
+    sequential = [bool(block.get("sequential")) for block in data.get("train", [])]
+
+    def keep(i: int, rank: int, run: RunSpec) -> bool:
+        return not sequential[i] or rank < wanted(run) or _started(jobs[run.key])
+
+    lines = []
+    for i, block_runs in enumerate(blocks):
+        if not sequential[i]:
+            continue
+        settings: dict[tuple, dict[str, list]] = {}  # (setting, hyperparameters) -> algo -> [(rank, run)]
+        for rank, run in block_runs:
+            setting = (_design_key(run)[:-1], run.hyperparameters)
+            settings.setdefault(setting, {}).setdefault(run.algo, []).append((rank, run))
+        for (setting, hyperparameters), by_algo in settings.items():
+            task, backend, num_envs, epochs, horizon = setting
+            where = f"{backend}, N {num_envs}, h {horizon}, {epochs} epochs"
+            table = design(hyperparameters)[1]
+            rows = [] if table is None else [row for _, row in table.iterrows()]
+            for claim in paper.PAPER_CLAIMS:
+                if claim.task != task or claim.algo not in by_algo or claim.base not in by_algo:
+                    continue
+                what = f"{claim.algo} vs {claim.base}" + ("" if claim.metric == "return" else f" ({claim.metric})")
+                found = [
+                    row
+                    for row in rows
+                    if (row["task"], row["backend"], row["num_envs"], row["epochs"], row["horizon"]) == setting
+                    and (row["algo"], row["base"], row["metric"]) == (claim.algo, claim.base, claim.metric)
+                ]
+                if found:
+                    row = found[0]
+                    pairs = int(row["pairs"])
+                    said = [f"{pairs} pair{'' if pairs == 1 else 's'}", str(row["verdict"])]
+                    said += [] if row["design"] == "before first look" else [str(row["design"])]
+                    why = f"{', '.join(said)} -> {int(row['seeds_wanted'])} seeds"
+                else:
+                    why = f"no evaluated pair yet -> {LOOKS[0]} seeds"
+                lines.append(f"sequential: {task} {what} ({where}): {why}")
+            counts, beyond = [], 0
+            for algo, ranked in by_algo.items():
+                counts.append(f"{algo} {sum(keep(i, rank, run) for rank, run in ranked)}")
+                beyond += sum(rank >= wanted(run) and keep(i, rank, run) for rank, run in ranked)
+            note = f"; {beyond} started run(s) beyond that kept" if beyond else ""
+            seeds = len({rank for ranked in by_algo.values() for rank, _ in ranked})
+            lines.append(
+                f"sequential: [[train]] #{i + 1} {task} ({where}) plans {', '.join(counts)} of its {seeds} seeds{note}"
+            )
+    return keep, lines
+
+
+def plan(data: dict, store: Path, stream=None) -> list[Job]:
     """Every job of the spec, in the order they may start: the first seed's training runs, the checks,
     the other seeds' runs, then analyses of runs (the runner starts an analysis as soon as its run is
-    done)."""
+    done). A spec with sequential [[train]] blocks has the runs its design wants (:func:`_sequential_design`),
+    and the lines that say why are written to ``stream`` (default: standard output)."""
     import backends
     import tasks
     from algorithms.config import ALGORITHMS
@@ -529,10 +656,15 @@ def plan(data: dict, store: Path) -> list[Job]:
     device = suite.get("device", "cpu")
     jobs: list[Job] = []
 
-    runs = _train_grid(data, device, known)
+    blocks = _train_blocks(data, device, known)
+    keep = None
+    if any(block.get("sequential") for block in data.get("train", [])):
+        keep, lines = _sequential_design(data, blocks, store / "runs")
+        for line in lines:
+            print(line, file=stream or sys.stdout, flush=True)
+    runs = _train_grid(data, blocks, keep)
     for run in runs:
-        job = train_job(run, store / "runs" / run.dirname)
-        jobs.append(job if job.is_done() else _finished_elsewhere(run, store / "runs") or job)
+        jobs.append(_resolved(run, store / "runs"))
 
     check_args: list[list[str]] = []  # each check job's extra words, in order
     for i, block in enumerate(data.get("check", [])):

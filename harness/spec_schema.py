@@ -4,11 +4,12 @@ planner (:func:`harness.bench.plan`) or any job starts.
 A spec is TOML (``harness/bench.py``'s docstring lists its keys). :func:`validate_spec` walks it against
 :data:`SCHEMA` and raises :class:`~harness.results.RunError` with one line naming the key's path
 (``[[train]] #2 epochs``) and what is valid, for: a wrong type (a string for an integer, a boolean for a
-number, a list given as a string), a value out of range (epochs 0, a landscape grid of 1, a seed of
--1 or 2**64), an unknown key, a name that does not exist (backend, task, algorithm, check kind), a suite
-name that would leave the store, and the cross-field rules: a per-task block for a task its block does
-not train, options for a backend its block does not use, a sim-to-sim pair on one backend. Names are
-checked against the registries; selections that match no run are the planner's to refuse.
+number, a list given as a string, ``sequential = "yes"`` for true), a value out of range (epochs 0, a
+landscape grid of 1, a seed of -1 or 2**64), an unknown key, a name that does not exist (backend, task,
+algorithm, check kind), a suite name that would leave the store, and the cross-field rules: a per-task
+block for a task its block does not train, options for a backend its block does not use, a sim-to-sim
+pair on one backend. Names are checked against the registries; selections that match no run are the
+planner's to refuse.
 
 Limits: seeds are at most 2**31 - 1 (every generator the harness seeds takes them), env counts at most
 65,536 per run, landscape grids at most 400 x 400.
@@ -221,6 +222,7 @@ TRAIN = table(
         "per_task": _per_task,
         "eval": table(EVAL),
         "backend_options": _options,
+        "sequential": boolean,  # the seeds list is the most the pre-registered design may use (harness/bench.py)
     },
     required=("backends", "tasks", "algos", "epochs"),
 )

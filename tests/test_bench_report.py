@@ -18,7 +18,7 @@ from harness.report import write_bench_report
 from harness.report.documents import header_lines
 from harness.report.plots import curve_settings, learning_curve_frame, plot_returns_vs_h
 from harness.report.records import base_algo, collect_runs, load_run
-from harness.report.stats import iqm_difference_with_ci, minimum_detectable_difference, seeds_needed
+from harness.report.stats import minimum_detectable_difference, paired_minimum_detectable_difference, seeds_needed
 from harness.report.tables import (
     grad_variance_growth_table,
     grad_variance_table,
@@ -247,20 +247,8 @@ def test_returns_iqm_ci_and_improvement(suite):
     assert tdadpt["iqm_ci_low"] <= 12.0 <= tdadpt["iqm_ci_high"]
     assert tdadpt["base"] == "shac"
     assert tdadpt["improvement_iqm"] == pytest.approx(12.0 - 3.0)
-    assert tdadpt["improvement_ci_low"] <= 9.0 <= tdadpt["improvement_ci_high"]
-    # the report's documented procedure, recomputed independently: unpaired two-sample percentile
-    # bootstrap of the IQM difference, 2000 resamples, rng 0
-    independent = stats.bootstrap(
-        (np.array(TDADPT_FINALS), np.array(SHAC_FINALS)),
-        lambda x, y, axis=-1: stats.trim_mean(x, 0.25, axis=axis) - stats.trim_mean(y, 0.25, axis=axis),
-        paired=False,
-        vectorized=True,
-        n_resamples=2000,
-        method="percentile",
-        rng=np.random.default_rng(0),
-    ).confidence_interval
-    assert tdadpt["improvement_ci_low"] == pytest.approx(independent.low)
-    assert tdadpt["improvement_ci_high"] == pytest.approx(independent.high)
+    # descriptive beside the claims table's verdict: no interval (an unpaired bootstrap reads a paired design)
+    assert "improvement_ci_low" not in returns.columns and "p_improvement_ci_low" not in returns.columns
 
 
 def test_probability_of_improvement_is_rliables(suite):
@@ -270,27 +258,50 @@ def test_probability_of_improvement_is_rliables(suite):
     tdadpt = _row(returns, task="ant", backend="newton", algo="shac-tdadpt", horizon=16)
     expected = metrics.probability_of_improvement(np.array(TDADPT_FINALS)[:, None], np.array(SHAC_FINALS)[:, None])
     assert tdadpt["p_improvement"] == pytest.approx(expected) == pytest.approx(0.8)  # 20 of 25 pairs
-    assert 0.0 <= tdadpt["p_improvement_ci_low"] <= 0.8 <= tdadpt["p_improvement_ci_high"] <= 1.0
     assert pd.isna(_row(returns, task="ant", backend="newton", algo="shac", horizon=16)["p_improvement"])
 
 
-def test_paper_claims_are_judged_by_the_ci_of_the_relative_change_of_the_mean(suite):
-    from harness.report.claims import claim_verdict
+def test_paper_claims_are_judged_on_seed_pairs_by_the_pre_registered_design(suite):
+    from harness.report.sequential import LOOK_ALPHAS, verdict
 
     claims = pd.read_csv(suite["out"] / "returns_claims.csv")
     # the synthetic suite tests one claim (Ant SHAC-TDAdpt over SHAC, +50%), at one setting: h 16
     row = _row(claims, task="ant", backend="newton", algo="shac-tdadpt")
-    assert (row["base"], row["horizon"], row["seeds"], row["base_seeds"]) == ("shac", 16, 5, 5)
-    assert row["claimed_change"] == 0.5
+    assert (row["base"], row["horizon"], row["pairs"], row["look"]) == ("shac", 16, 5, "5 pairs")
+    assert row["claimed_change"] == 0.5 and row["confidence"] == pytest.approx(1.0 - LOOK_ALPHAS[0])
     assert row["measured_change"] == pytest.approx(np.mean(TDADPT_FINALS) / np.mean(SHAC_FINALS) - 1.0)
     low, high = row["change_ci_low"], row["change_ci_high"]
-    # SHAC's seeds (1, 2, 3, 4, 100) cannot tell its mean from 0, so Welch's test rejects no ratio at all
+    # SHAC's seeds (1, 2, 3, 4, 100) cannot tell its mean from 0: the paired interval is unbounded
     assert (low, high) == (-math.inf, math.inf)
-    for far in (-1e6, 1e6):
-        assert _welch_p(TDADPT_FINALS, far * np.array(SHAC_FINALS)) > 0.05
-    assert row["verdict"] == claim_verdict(low, high, 0.5) == "undecided"
+    assert row["verdict"].startswith("undecided") and verdict(low, high, 0.5, False) == "undecided"
+    assert row["seeds_wanted"] in (5, 10) and row["design"] in ("continue", "futile")
+    # descriptive columns: each side's IQM, rliable's P over the pairs, the exact sign-flip p: the differences
+    # are 9, 9, 9, 9 and -86, so every one of the 32 sign patterns has a mean at least as far from 0: p = 1
+    assert (row["iqm_algo"], row["iqm_base"]) == pytest.approx((12.0, 3.0))
+    assert row["p_improvement"] == pytest.approx(0.8) and row["sign_flip_p"] == pytest.approx(1.0)
+    assert row["spent_env_steps"] == 10 * EPOCHS * 4 * 16
     assert len(claims) == 1  # no other claim has both of its algorithms evaluated at one setting
     assert "## The paper's claims" in (suite["out"] / "returns.md").read_text()
+
+
+def test_a_claim_reads_only_the_seeds_both_algorithms_have(tmp_path):
+    from harness.report.claims import PAPER_CLAIMS, claims_table
+    from harness.report.stats import paired_ratio_ci
+
+    claim = [c for c in PAPER_CLAIMS if (c.task, c.algo) == ("ant", "shac-tdfixed")]
+    finals = {"shac": {0: 100.0, 1: 120.0, 2: 90.0, 3: 130.0, 4: 110.0, 6: 500.0}}
+    finals["shac-tdfixed"] = {0: 150.0, 1: 170.0, 2: 140.0, 3: 160.0, 4: 150.0, 5: 900.0}
+    for algo, by_seed in finals.items():
+        for seed, final in by_seed.items():
+            make_run(tmp_path, "ant", "newton", algo, seed, 16, final, [1.0] * EPOCHS)
+    row = claims_table([load_run(p) for p in collect_runs(tmp_path)], claim).iloc[0]
+    common = [0, 1, 2, 3, 4]  # seed 5 has no base run and seed 6 no variant: neither is a pair
+    variant = [finals["shac-tdfixed"][s] for s in common]
+    base = [finals["shac"][s] for s in common]
+    expected = paired_ratio_ci(variant, base, 0.975)
+    assert row["pairs"] == 5
+    assert (row["measured_change"], row["change_ci_low"], row["change_ci_high"]) == pytest.approx(expected)
+    assert row["change_ci_low"] > 0.0 and row["verdict"] == "confirmed" and row["design"] == "decided"
 
 
 def test_the_go2_forward_velocity_claim_reads_each_runs_velocity_and_needs_a_moving_base(tmp_path):
@@ -315,7 +326,7 @@ def test_the_go2_forward_velocity_claim_reads_each_runs_velocity_and_needs_a_mov
     assert sorted(table["num_envs"]) == [4, 8]  # evaluations without a velocity test nothing
     moving = _row(table, num_envs=4)
     assert moving["measured_change"] == pytest.approx(0.4 / 0.15 - 1.0)
-    assert moving["metric"] == "forward velocity" and (moving["seeds"], moving["base_seeds"]) == (2, 2)
+    assert moving["metric"] == "forward velocity" and moving["pairs"] == 2
     assert _row(table, num_envs=8)["verdict"].startswith("no ratio: the base's mean is")
 
 
@@ -359,7 +370,8 @@ def test_forward_locomotion_reads_each_seeds_final_velocity_against_the_speed_an
     split = _row(table, algo="shac", num_envs=8)
     assert split["seeds_moving"] == 1 and split["verdict"] == "undecided" and split["paper_verdict"] == "undecided"
     against = _row(table, algo="shac", num_envs=16)
-    assert against["verdict"] == "moves forward" and against["paper_verdict"] == "contradicted"
+    # a budget below the paper's protocol (N 64, h 32, 2000 epochs) cannot contradict the paper
+    assert against["verdict"] == "moves forward" and against["paper_verdict"] == "not confirmed at this budget"
 
 
 @pytest.mark.parametrize(
@@ -419,63 +431,57 @@ def test_the_lambda_verdict_reads_its_ci_against_zero(low, high, verdict):
 
 
 @pytest.mark.parametrize(
-    ("low", "high", "verdict"),
+    ("low", "high", "at_paper", "said"),
     [
-        (0.1, 0.9, "confirmed"),
-        (0.6, 0.9, "confirmed, larger than claimed"),
-        (0.1, 0.3, "improvement confirmed, smaller than claimed"),
-        (-0.2, 0.3, "contradicted (claimed size excluded)"),
-        (-0.5, -0.1, "contradicted (below the base)"),
-        (-0.2, 0.7, "undecided"),
-        (math.nan, math.nan, "undecided (under 2 seeds a side)"),
-        (-0.4, math.inf, "undecided"),
-        (0.1, math.inf, "confirmed"),
-        (-math.inf, 0.3, "contradicted (claimed size excluded)"),
+        (0.1, 0.9, True, "confirmed"),
+        (0.6, 0.9, True, "confirmed (larger than claimed)"),
+        (0.1, 0.3, True, "contradicted (an improvement, smaller than claimed)"),
+        (0.1, 0.3, False, "not confirmed at this budget (an improvement, smaller than claimed)"),
+        (-0.2, 0.3, True, "contradicted (claimed size excluded)"),
+        (-0.2, 0.3, False, "not confirmed at this budget (claimed size excluded)"),
+        (-0.5, -0.1, True, "contradicted (below the base)"),
+        (-0.2, 0.7, True, "undecided"),
+        (math.nan, math.nan, True, "undecided (no interval)"),
+        (-0.4, math.inf, True, "undecided"),
+        (0.1, math.inf, True, "confirmed"),
+        (-math.inf, 0.3, False, "not confirmed at this budget (claimed size excluded)"),
     ],
 )
-def test_a_claims_verdict_reads_its_ci_against_zero_and_the_claimed_size(low, high, verdict):
-    from harness.report.claims import claim_verdict
+def test_a_claims_verdict_reads_its_interval_against_zero_the_claimed_size_and_the_budget(low, high, at_paper, said):
+    from harness.report.sequential import verdict
 
-    assert claim_verdict(low, high, 0.5) == verdict
-
-
-def _welch_p(variant, base) -> float:
-    return float(stats.ttest_ind(variant, base, equal_var=False).pvalue)
+    assert verdict(low, high, 0.5, at_paper) == said
 
 
-def test_the_relative_change_of_the_mean_ignores_the_returns_scale():
-    from harness.report.stats import relative_mean_change_with_ci
+def test_the_paired_interval_is_the_set_of_ratios_the_paired_t_test_keeps():
+    from harness.report.stats import paired_ratio_ci
 
-    variant, base = np.array([12.0, 15.0, 11.0]), np.array([10.0, 8.0, 9.0])
-    point, low, high = relative_mean_change_with_ci(variant, base)
-    assert point == pytest.approx(38.0 / 27.0 - 1.0) and low < point < high
-    assert _welch_p(variant, (1.0 + low) * base) == pytest.approx(0.05, abs=1e-6)
-    assert _welch_p(variant, (1.0 + high) * base) == pytest.approx(0.05, abs=1e-6)
-    assert relative_mean_change_with_ci(7.0 * variant, 7.0 * base) == pytest.approx((point, low, high))
-    assert math.isnan(relative_mean_change_with_ci(variant, [3.0])[1])  # one base seed: a value, no CI
-    assert all(math.isnan(v) for v in relative_mean_change_with_ci(variant, [-1.0, -2.0]))  # no ratio to a loss
+    variant, base = np.array([12.0, 15.0, 11.0, 14.0]), np.array([10.0, 12.0, 9.0, 9.5])
+    point, low, high = paired_ratio_ci(variant, base)
+    assert point == pytest.approx(variant.mean() / base.mean() - 1.0) and low < point < high
+    for bound in (low, high):  # each bound is where the paired t-test of variant - r base sits at p = 0.05
+        assert stats.ttest_1samp(variant - (1.0 + bound) * base, 0.0).pvalue == pytest.approx(0.05, abs=1e-6)
+    assert paired_ratio_ci(7.0 * variant, 7.0 * base) == pytest.approx((point, low, high))  # scale-free
+    wider = paired_ratio_ci(variant, base, 0.975)
+    assert wider[1] < low and wider[2] > high
+    assert math.isnan(paired_ratio_ci(variant[:1], base[:1])[1])  # one pair: a value, no interval
+    assert all(math.isnan(v) for v in paired_ratio_ci(variant[:2], [-1.0, -2.0]))  # no ratio to a loss
+    with pytest.raises(ValueError, match="paired samples differ in size"):
+        paired_ratio_ci(variant, base[:3])
 
 
-def test_the_claims_interval_keeps_its_coverage_where_a_bootstrap_of_two_seeds_does_not():
-    """Two seeds a side, each improving on every base seed: the bootstrap's interval of the ratio would
-    lie above 0 (its resamples only mix the four returns), the t-test's cannot tell the base's mean from
-    0 and leaves the ratio unbounded above: undecided, not confirmed."""
-    from harness.report.claims import claim_verdict
-    from harness.report.stats import relative_mean_change_with_ci
+def test_pairing_carries_the_seeds_covariance_in_either_direction():
+    """Positively correlated seeds (a seed lucky for both): pairing narrows the interval against an unpaired
+    reading; negatively correlated ones widen it, where an unpaired interval would claim too much."""
+    from harness.report.stats import paired_ratio_ci
 
-    variant, base = [6246.2, 7280.1], [3920.2, 6152.3]
-    point, low, high = relative_mean_change_with_ci(variant, base)
-    assert point == pytest.approx(np.mean(variant) / np.mean(base) - 1.0)
-    assert low < 0.0 and high == math.inf
-    assert claim_verdict(low, high, 0.5) == "undecided"
-    # eight seeds a side with a tighter spread (std 700) bound it, and the verdict follows the interval
-    rng = np.random.default_rng(0)
-    many_variant, many_base = rng.normal(7500.0, 700.0, 8), rng.normal(5000.0, 700.0, 8)
-    point, low, high = relative_mean_change_with_ci(many_variant, many_base)
-    assert 0.5 < low < point < high < math.inf  # the draw's true change is +50%; its means' ratio, +77%
-    assert claim_verdict(low, high, 0.5) == "confirmed, larger than claimed"
-    exact = relative_mean_change_with_ci([2.0, 2.0], [1.0, 1.0])
-    assert exact == pytest.approx((1.0, 1.0, 1.0))  # no spread on either side: the ratio is known
+    base = np.array([4000.0, 5000.0, 6000.0, 7000.0, 8000.0])
+    together = 1.5 * base + np.array([100.0, -100.0, 50.0, -50.0, 0.0])
+    against = 1.5 * base[::-1] + np.array([100.0, -100.0, 50.0, -50.0, 0.0])
+    _, low_together, high_together = paired_ratio_ci(together, base)
+    _, low_against, high_against = paired_ratio_ci(against, base)
+    assert together.mean() == pytest.approx(against.mean())  # the same two samples, paired differently
+    assert high_together - low_together < 0.1 < high_against - low_against
 
 
 def test_aggregate_normalises_each_task_by_untrained_and_best(suite):
@@ -574,8 +580,6 @@ def test_single_seed_has_a_value_and_no_ci(suite):
 def test_tables_are_reproducible(suite):
     runs = [load_run(p) for p in collect_runs(suite["root"])]
     pd.testing.assert_frame_equal(returns_table(runs), returns_table(runs))
-    point, low, high = iqm_difference_with_ci([1.0, 2.0], [3.0])  # one seed on a side: a value, no CI
-    assert point == -1.5 and math.isnan(low) and math.isnan(high)
 
 
 def test_grad_variance_quartiles_and_growth(suite):
@@ -674,14 +678,19 @@ def test_minimum_detectable_difference_has_the_power_it_claims():
 def test_power_table_pools_the_spread_of_a_setting(suite):
     runs = [load_run(p) for p in collect_runs(suite["root"])]
     power = power_table(runs)
-    h16 = _row(power, task="ant", backend="newton", horizon=16, num_envs=4)
+    h16 = _row(power, task="ant", backend="newton", horizon=16, num_envs=4, family="shac")
     spread = math.sqrt((np.var(SHAC_FINALS, ddof=1) * 4 + np.var(TDADPT_FINALS, ddof=1) * 4) / 8)
     assert h16["pooled_std"] == pytest.approx(spread)
     assert h16["base_mean"] == pytest.approx(np.mean(SHAC_FINALS))
     assert h16["seeds_for_100pct"] == seeds_needed(spread, np.mean(SHAC_FINALS))
     returns = returns_table(runs)
     tdadpt = _row(returns, algo="shac-tdadpt", backend="newton", horizon=16)
-    assert tdadpt["mde_80"] == pytest.approx(minimum_detectable_difference(spread, 5, 5))
+    # paired: the std of the seed-paired differences over the 5 seeds both have
+    paired_spread = np.std(np.subtract(TDADPT_FINALS, SHAC_FINALS), ddof=1)
+    assert tdadpt["mde_80"] == pytest.approx(paired_minimum_detectable_difference(paired_spread, 5))
+    assert paired_minimum_detectable_difference(1.0, 5) == pytest.approx(
+        (stats.t.ppf(0.975, 4) + stats.t.ppf(0.8, 4)) / math.sqrt(5)
+    )
     assert (suite["out"] / "returns_power.csv").is_file()
 
 

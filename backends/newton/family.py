@@ -115,14 +115,19 @@ class EngineFamily(ABC):
         """A new (N, D) tensor holding two of the adapter's own (frame) arrays side by side."""
         return torch.cat((self.views(a), self.views(b)), dim=1)
 
-    def load_state(self, state: newton.State, engine: torch.Tensor, cache: bool = True) -> None:
-        """Copy engine rows into ``state`` (``cache=False`` for arrays the adapter does not own)."""
+    def load_state(self, state: newton.State, engine: torch.Tensor, cache: bool = True, complete: bool = True) -> None:
+        """Copy engine rows into ``state`` (``cache=False`` for arrays the adapter does not own).
+
+        ``complete=False`` leaves :meth:`complete_loaded_state` to the caller: the frame stepper runs it
+        inside the step's own Warp work, so that a captured step replays it from C++ instead of
+        launching it from Python every step (``backends/newton/tape.py``)."""
         a, b = self.state_arrays(state)
         k = self.engine_split()
         with torch.no_grad():
             self.views(a, cache).copy_(engine[:, :k])
             self.views(b, cache).copy_(engine[:, k:])
-        self.complete_loaded_state(state)
+        if complete:
+            self.complete_loaded_state(state)
 
     def complete_loaded_state(self, state: newton.State) -> None:
         """Derive what the collision pipeline reads but the engine row does not hold (default: nothing)."""

@@ -18,15 +18,15 @@
   own (unchanged) inputs, so ``retain_graph`` backward passes all return the first one's gradient.
 * Without grad (``torch.no_grad()`` or inputs that need none) the step runs without a tape on two
   ping-pong buffers (the scratch frame).
-* Graph capture (option ``graph_capture``, on by default on CPU): a frame's Warp work (collision,
-  substeps, IK; then its tape's backward pass and the zeroing of its gradients) is captured once,
-  the second time the frame is used, and replayed with ``wp.capture_launch`` ever after. Warp's
-  Python-side launch path (argument packing, tape bookkeeping) costs ~80 us per kernel launch on
-  this CPU, about as much as the kernels themselves at 64 Ant envs; the replay runs the same kernels
-  on the same buffers from C++. A frame's buffers never change identity, so its graphs stay valid;
-  what changes per step (the state and control tensors, the incoming gradients) is copied into those
-  buffers outside the graphs. Outputs and gradients are bit-identical to the uncaptured path
-  (tests/test_newton_ant.py).
+* Graph capture (option ``graph_capture``, on by default on CPU): a frame's Warp work (the loaded
+  state's body poses, collision, substeps, IK; then its tape's backward pass and the zeroing of its
+  gradients) is captured once, the second time the frame is used, and replayed with
+  ``wp.capture_launch`` ever after. Warp's Python-side launch path (argument packing, tape
+  bookkeeping) costs ~80 us per kernel launch on this CPU, about as much as the kernels themselves
+  at 64 Ant envs; the replay runs the same kernels on the same buffers from C++. A frame's buffers
+  never change identity, so its graphs stay valid; what changes per step (the state and control
+  tensors, the incoming gradients) is copied into those buffers outside the graphs. Outputs and
+  gradients are bit-identical to the uncaptured path (tests/test_newton_ant.py).
 """
 
 from __future__ import annotations
@@ -111,7 +111,9 @@ class FrameStepper:
         return self.forward_no_grad(engine, control)
 
     def _load_inputs(self, frame: Frame, engine: torch.Tensor, control: torch.Tensor) -> None:
-        self.family.load_state(frame.states[0], engine)
+        """Copy the step's inputs into the frame; what the engine derives from them (Featherstone's body
+        poses) is the first thing the step's Warp work does, so a captured step replays it too."""
+        self.family.load_state(frame.states[0], engine, complete=False)
         with torch.no_grad():
             self.views(self.family.control_array(frame)).copy_(control.reshape(self.num_envs, -1))
 
@@ -145,6 +147,7 @@ class FrameStepper:
 
         def work() -> None:
             a, b = frame.states
+            family.complete_loaded_state(a)
             family.pipeline.collide(a, frame.contacts)
             for s in range(self.substeps):
                 family.substep(a, b, frame, s)
@@ -171,6 +174,7 @@ class FrameStepper:
 
         def work() -> None:
             states = frame.states
+            family.complete_loaded_state(states[0])  # outside the tape, as the engine rows' copy is
             family.pipeline.collide(states[0], frame.contacts)  # discrete: outside the tape
             tape = wp.Tape()
             with tape:

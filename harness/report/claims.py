@@ -5,9 +5,10 @@ and its claims of which policies move forward at all (:func:`locomotion_table`).
 A claim says a TD-lambda variant beats its base by about a given share of the base's mean at the paper's
 budget (ARE, Section V: Fig. 5 for the Ant, Fig. 9 and the abstract for the Go2), in final return or, for
 the Go2, whose SHAC the paper says acquires no forward locomotion, in forward velocity. A setting tests
-it when both algorithms have evaluated runs there; the verdict reads the 95% CI of the measured relative
-change of the mean (:func:`claim_verdict`), so a budget or a seed count that cannot decide says
-"undecided" rather than a point estimate's guess.
+it when both algorithms have evaluated runs there, and it is judged on the seeds both have (the design
+pairs them) by the pre-registered analysis of :mod:`harness.report.sequential` (docs/statistics.md), so a
+budget or a seed count that cannot decide says "undecided" rather than a point estimate's guess, and a
+budget below the paper's never contradicts it.
 """
 
 from __future__ import annotations
@@ -19,7 +20,8 @@ import numpy as np
 import pandas as pd
 
 from harness.report.records import RunRecord, by_group, metric_column, value_or_range
-from harness.report.stats import mean_with_t_ci, relative_mean_change_with_ci, sample_std
+from harness.report.sequential import CONFIRMED, CONTRADICTED, NOT_CONFIRMED, UNDECIDED, at_paper_protocol, judge
+from harness.report.stats import iqm, mean_with_t_ci, probability_of_improvement, sample_std, sign_flip_p_value
 
 
 @dataclass(frozen=True)
@@ -77,60 +79,79 @@ def _setting(task: str, backend: str, num_envs: int | None, planned: int | None,
     return {"task": task, "backend": backend, "num_envs": num_envs, "epochs": planned, "horizon": horizon}
 
 
-def claim_verdict(low: float, high: float, claimed: float) -> str:
-    """What a 95% CI [low, high] of the relative change says of a claimed improvement ``claimed`` > 0:
-    confirmed when the CI lies above 0 and holds the claimed size; contradicted when it excludes the
-    claimed size from below and does not show an improvement; undecided when it holds both 0 and the
-    claimed size (or there is no CI)."""
-    if math.isnan(low) or math.isnan(high):
-        return "undecided (under 2 seeds a side)"
-    if high < 0.0:
-        return "contradicted (below the base)"
-    if low > claimed:
-        return "confirmed, larger than claimed"
-    if low > 0.0:
-        return "confirmed" if high >= claimed else "improvement confirmed, smaller than claimed"
-    return "undecided" if high >= claimed else "contradicted (claimed size excluded)"
+def _paired(variant: list[RunRecord], base: list[RunRecord], claim: Claim) -> tuple[list[int], np.ndarray, np.ndarray]:
+    """The seeds both algorithms have evaluated with a finite value, in seed order, and their values: the pairs
+    of the design (a seed one side lacks is not a pair)."""
+    v = {r.seed: claim.value(r) for r in variant}
+    b = {r.seed: claim.value(r) for r in base}
+    seeds = sorted(s for s in v.keys() & b.keys() if math.isfinite(v[s]) and math.isfinite(b[s]))
+    return seeds, np.array([v[s] for s in seeds], dtype=float), np.array([b[s] for s in seeds], dtype=float)
+
+
+def _spent(members: list[RunRecord]) -> tuple[int, float]:
+    """(env steps, core-hours of training wall time) of the runs a look read."""
+    steps = sum(r.env_steps for r in members)
+    hours = sum(r.wall_s for r in members if math.isfinite(r.wall_s)) / 3600.0
+    return int(steps), float(hours)
 
 
 def claims_table(runs: list[RunRecord], claims=PAPER_CLAIMS) -> pd.DataFrame:
     """One row per claim and setting (task, backend, N, planned epochs, h) where both of its algorithms
-    have evaluated runs: the seeds, the measured relative change of the mean with its CI, the verdict."""
+    have evaluated runs, judged by the pre-registered design (:mod:`harness.report.sequential`): the seed
+    pairs, the look, the relative change of the mean with its paired interval at that look's level, the
+    verdict and the design's state; beside them, descriptive only, each side's IQM, rliable's probability of
+    improvement (no interval: its bootstrap interval under-covers at these seeds) and the exact sign-flip
+    p-value of the paired differences; and the compute the look's runs took."""
     groups = by_group(r for r in runs if r.evaluation is not None)
-    env_steps = {key: value_or_range(r.env_steps for r in members) for key, members in groups.items()}
     rows = []
     for claim in claims:
-        values = {key: np.array([claim.value(r) for r in members], dtype=float) for key, members in groups.items()}
-        for (task, backend, num_envs, planned, horizon, algo), variant in values.items():
-            base = values.get((task, backend, num_envs, planned, horizon, claim.base))
-            if task != claim.task or algo != claim.algo or base is None:
+        for key, variant_runs in groups.items():
+            task, backend, num_envs, planned, horizon, algo = key
+            base_runs = groups.get((*key[:-1], claim.base))
+            if task != claim.task or algo != claim.algo or base_runs is None:
                 continue
-            if not (np.isfinite(variant).all() and np.isfinite(base).all()):
-                continue  # evaluations made before the metric was recorded
-            change, low, high = relative_mean_change_with_ci(variant, base)
-            verdict = claim_verdict(low, high, claim.change)
-            if not base.mean() > 0.0:
-                verdict = f"no ratio: the base's mean is {base.mean():.3g}"
+            seeds, variant, base = _paired(variant_runs, base_runs, claim)
+            if not seeds:
+                continue  # evaluations made before the metric was recorded, or no common seed
+            look = judge(variant, base, claim.change, at_paper_protocol(num_envs, planned, horizon))
+            said = look.verdict if base.mean() > 0.0 else f"no ratio: the base's mean is {base.mean():.3g}"
+            read = {s for s in seeds[: look.used]}
+            steps, hours = _spent([r for r in variant_runs + base_runs if r.seed in read])
             rows.append(
                 _setting(task, backend, num_envs, planned, horizon)
                 | {
-                    "env_steps": env_steps[(task, backend, num_envs, planned, horizon, algo)],
+                    "env_steps": value_or_range(r.env_steps for r in variant_runs),
                     "metric": claim.metric,
                     "algo": algo,
                     "base": claim.base,
-                    "seeds": variant.size,
-                    "base_seeds": base.size,
+                    "pairs": look.pairs,
+                    "look": "" if look.look is None else f"{look.used} pairs",
                     "claimed_change": claim.change,
-                    "measured_change": change,
-                    "change_ci_low": low,
-                    "change_ci_high": high,
-                    "verdict": verdict,
+                    "measured_change": look.change,
+                    "confidence": look.confidence,
+                    "change_ci_low": look.low,
+                    "change_ci_high": look.high,
+                    "verdict": said,
+                    "design": look.state,
+                    "seeds_wanted": look.seeds_wanted,
+                    "iqm_algo": iqm(variant),
+                    "iqm_base": iqm(base),
+                    "p_improvement": probability_of_improvement([variant], [base]),
+                    "sign_flip_p": sign_flip_p_value(variant - base),
+                    "spent_env_steps": steps,
+                    "spent_core_hours": hours,
                     "source": claim.source,
                 }
             )
-    columns = ["task", "backend", "num_envs", "epochs", "horizon", "env_steps", "metric", "algo", "base", "seeds"]
-    columns += ["base_seeds", "claimed_change", "measured_change", "change_ci_low", "change_ci_high", "verdict"]
-    return pd.DataFrame(rows, columns=columns + ["source"])
+    return pd.DataFrame(rows, columns=CLAIMS_COLUMNS)
+
+
+CLAIMS_COLUMNS = [
+    *("task", "backend", "num_envs", "epochs", "horizon", "env_steps", "metric", "algo", "base", "pairs", "look"),
+    *("claimed_change", "measured_change", "confidence", "change_ci_low", "change_ci_high", "verdict", "design"),
+    *("seeds_wanted", "iqm_algo", "iqm_base", "p_improvement", "sign_flip_p", "spent_env_steps", "spent_core_hours"),
+    "source",
+]
 
 
 def lambda_course_verdict(low: float, high: float) -> str:
@@ -147,7 +168,7 @@ def lambda_course_table(runs: list[RunRecord]) -> pd.DataFrame:
     """The paper's Fig. 4b for every setting with finished (evaluated) runs of an adaptive-lambda algorithm:
     lambda after the first and the last epoch, the change between them per seed (mean, 95% t CI over seeds),
     the share of epochs in which lambda fell (how gradual the course is), and the verdict."""
-    groups = by_group(r for r in runs if r.evaluation is not None and r.algo.endswith("-tdadpt"))
+    groups = by_group(r for r in runs if r.evaluation is not None and r.algo.split(" (")[0].endswith("-tdadpt"))
     rows = []
     for (task, backend, num_envs, planned, horizon, algo), members in groups.items():
         courses = [metric_column(r.metrics, "lam").to_numpy(dtype=float) for r in members]
@@ -189,13 +210,16 @@ def locomotion_verdict(low: float, high: float, speed: float = LOCOMOTION_SPEED)
     return "does not move forward" if high < speed else "undecided"
 
 
-def _paper_locomotion_verdict(claim: LocomotionClaim | None, verdict: str) -> str:
-    """The paper's claim (if it makes one for the row) read against the row's verdict."""
+def _paper_locomotion_verdict(claim: LocomotionClaim | None, verdict: str, paper_protocol: bool) -> str:
+    """The paper's claim (if it makes one for the row) read against the row's verdict: a disagreement
+    contradicts it only at the paper's training protocol; below it the claim is not confirmed at this budget."""
     if claim is None:
         return ""
     if verdict not in ("moves forward", "does not move forward"):
-        return "undecided"
-    return "confirmed" if (verdict == "moves forward") == claim.moves else "contradicted"
+        return UNDECIDED
+    if (verdict == "moves forward") == claim.moves:
+        return CONFIRMED
+    return CONTRADICTED if paper_protocol else NOT_CONFIRMED
 
 
 def locomotion_table(runs: list[RunRecord], claims=PAPER_LOCOMOTION) -> pd.DataFrame:
@@ -226,10 +250,26 @@ def locomotion_table(runs: list[RunRecord], claims=PAPER_LOCOMOTION) -> pd.DataF
                 "seeds_moving": int(np.sum(final >= LOCOMOTION_SPEED)),
                 "verdict": verdict,
                 "paper_says": "" if claim is None else ("moves" if claim.moves else "does not move"),
-                "paper_verdict": _paper_locomotion_verdict(claim, verdict),
+                "paper_verdict": _paper_locomotion_verdict(
+                    claim, verdict, at_paper_protocol(num_envs, planned, horizon)
+                ),
                 "source": "" if claim is None else claim.source,
             }
         )
     columns = ["task", "backend", "num_envs", "epochs", "horizon", "env_steps", "algo", "seeds"]
     columns += ["untrained_velocity", "final_velocity", "final_velocity_ci_low", "final_velocity_ci_high"]
     return pd.DataFrame(rows, columns=columns + ["seeds_moving", "verdict", "paper_says", "paper_verdict", "source"])
+
+
+def seeds_wanted(runs: list[RunRecord], claims=PAPER_CLAIMS) -> dict[tuple, int]:
+    """The seeds per algorithm the sequential design asks for, keyed like a run's group (task, backend,
+    num_envs, planned epochs, horizon, algo), for every algorithm of a claim judged on ``runs``: the most any
+    of its claims asks for (a base serves several claims; it continues while any of them does). An
+    algorithm none of whose claims has an evaluated pair yet is absent: the caller plans the first look."""
+    wanted: dict[tuple, int] = {}
+    for _, row in claims_table(runs, claims).iterrows():
+        setting = (row["task"], row["backend"], row["num_envs"], row["epochs"], row["horizon"])
+        for algo in (row["algo"], row["base"]):
+            key = (*setting, algo)
+            wanted[key] = max(wanted.get(key, 0), int(row["seeds_wanted"]))
+    return wanted

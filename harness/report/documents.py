@@ -16,6 +16,7 @@ import pandas as pd
 from harness.report.aggregate import aggregate_table
 from harness.report.claims import LOCOMOTION_SPEED, claims_table, lambda_course_table, locomotion_table
 from harness.report.formatting import fmt, fmt_ci, fmt_count, fmt_pct, fmt_range, fmt_verdict, is_missing
+from harness.report.free_claims import gradient_variance_claim_table, lambda_rate_table
 from harness.report.records import CheckRecord, RunRecord
 from harness.report.stats import BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, EFFECTS
 from harness.report.tables import (
@@ -158,7 +159,20 @@ def _signed_pct(value) -> str:
 
 def _change_ci(row: pd.Series) -> str:
     low, high = row["change_ci_low"], row["change_ci_high"]
-    return "n/a" if is_missing(low) or is_missing(high) else f"[{_signed_pct(low)}, {_signed_pct(high)}]"
+    if is_missing(low) or is_missing(high):
+        return "n/a"
+    level = f"{100 * row['confidence']:g}% " if "confidence" in row and not is_missing(row["confidence"]) else ""
+    return f"{level}[{_signed_pct(low)}, {_signed_pct(high)}]"
+
+
+def _design_cell(row: pd.Series) -> str:
+    """What the sequential design does next with a claim, and the seeds per algorithm it asks for."""
+    return f"{row['design']}: {int(row['seeds_wanted'])} seeds"
+
+
+def _spent_cell(row: pd.Series) -> str:
+    """The compute the look's runs took: env steps and training core-hours (both algorithms' runs)."""
+    return f"{int(row['spent_env_steps']):,} env steps, {row['spent_core_hours']:.1f} core-h"
 
 
 def _base_cell(row: pd.Series) -> str:
@@ -228,11 +242,9 @@ def returns_document(runs: list[RunRecord]) -> Table:
                     ("mean ± std", lambda r: f"{fmt(r['mean_final'])} ± {fmt(r['std_final'])}"),
                     ("initial (mean)", "mean_initial"),
                     ("vs base", _base_cell),
-                    ("IQM improvement", "improvement_iqm"),
-                    ("improvement 95% CI", lambda r: fmt_ci(r["improvement_ci_low"], r["improvement_ci_high"])),
-                    ("P(algo > base)", "p_improvement"),
-                    ("P 95% CI", lambda r: fmt_ci(r["p_improvement_ci_low"], r["p_improvement_ci_high"])),
-                    ("detectable at 80% power", "mde_80"),
+                    ("IQM improvement (descriptive)", "improvement_iqm"),
+                    ("P(algo > base) (descriptive)", "p_improvement"),
+                    ("detectable at 80% power (paired)", "mde_80"),
                     ("forward velocity m/s (IQM)", _velocity_cell),
                     ("velocity 95% CI", lambda r: fmt_ci(r["forward_velocity_ci_low"], r["forward_velocity_ci_high"])),
                 ],
@@ -240,10 +252,10 @@ def returns_document(runs: list[RunRecord]) -> Table:
             ),
             Section(
                 power_table(runs),
-                _key_columns("task", "backend", "num_envs", "epochs", "horizon", "algos", "seeds")
+                _key_columns("task", "backend", "num_envs", "epochs", "horizon", "family", "algos", "seeds")
                 + [
                     ("between-seed std (pooled)", "pooled_std"),
-                    ("base algorithms' mean", "base_mean"),
+                    ("base's mean", "base_mean"),
                     ("std / base mean", "cv"),
                 ]
                 + [(f"seeds for +{round(e * 100)}%", _whole(f"seeds_for_{round(e * 100)}pct")) for e in EFFECTS],
@@ -255,11 +267,17 @@ def returns_document(runs: list[RunRecord]) -> Table:
                 claims_table(runs),
                 _key_columns("task", "backend", "num_envs", "epochs", "horizon", "env_steps", "metric", "algo", "base")
                 + [
-                    ("seeds (algo / base)", lambda r: f"{r['seeds']} / {r['base_seeds']}"),
+                    ("seed pairs", "pairs"),
+                    ("look", lambda r: r["look"] if isinstance(r["look"], str) and r["look"] else "none yet"),
                     ("claimed", lambda r: _signed_pct(r["claimed_change"])),
-                    ("measured (mean)", lambda r: _signed_pct(r["measured_change"])),
-                    ("95% CI", _change_ci),
+                    ("mean ratio - 1 (verdict's estimand)", lambda r: _signed_pct(r["measured_change"])),
+                    ("interval", _change_ci),
                     ("verdict", "verdict"),
+                    ("design", _design_cell),
+                    ("IQM algo / base (descriptive)", lambda r: f"{fmt(r['iqm_algo'])} / {fmt(r['iqm_base'])}"),
+                    ("P(algo > base) (descriptive)", "p_improvement"),
+                    ("sign-flip p", "sign_flip_p"),
+                    ("spent", _spent_cell),
                     ("paper", "source"),
                 ],
                 heading="The paper's claims: each TD-lambda variant against its base",
@@ -286,6 +304,48 @@ def returns_document(runs: list[RunRecord]) -> Table:
                 empty="no adaptive-lambda algorithm has evaluated runs",
             ),
             Section(
+                lambda_rate_table(runs),
+                _key_columns("task", "backend", "num_envs", "epochs", "horizon", "env_steps", "algo", "seeds")
+                + [
+                    ("phi updates x lr (limit)", "limit"),
+                    ("change of phi (mean)", "delta_phi"),
+                    ("95% CI", lambda r: fmt_ci(r["delta_phi_ci_low"], r["delta_phi_ci_high"])),
+                    (
+                        "share of the limit used (mean, range)",
+                        lambda r: (
+                            f"{fmt_pct(r['used_share'])} ({fmt_pct(r['used_share_min'])}-"
+                            f"{fmt_pct(r['used_share_max'])})"
+                        ),
+                    ),
+                    ("epochs lambda fell", lambda r: fmt_pct(r["falling_share"])),
+                    ("verdict", "verdict"),
+                    ("paper", "source"),
+                ],
+                heading="The learned lambda's fall against what its optimiser allows",
+                csv_suffix="_lambda_rate",
+                empty="no adaptive-lambda algorithm has evaluated runs",
+            ),
+            Section(
+                gradient_variance_claim_table(runs),
+                _key_columns("task", "backend", "num_envs", "epochs", "horizon", "env_steps", "statistic", "algo")
+                + [
+                    ("base", "base"),
+                    ("seed pairs", "pairs"),
+                    (
+                        "level algo / base (geometric mean)",
+                        lambda r: f"{fmt(r['level_algo'])} / {fmt(r['level_base'])}",
+                    ),
+                    ("ratio", "ratio"),
+                    ("95% CI", lambda r: fmt_ci(r["ratio_ci_low"], r["ratio_ci_high"])),
+                    ("verdict: TD-lambda lowers it", "verdict"),
+                    ("paper's levels", "paper_levels"),
+                    ("paper", "source"),
+                ],
+                heading="The paper's claim that TD-lambda lowers the actor gradient's variance over training",
+                csv_suffix="_grad_variance",
+                empty="no finished variant and base logged the actor-gradient statistics",
+            ),
+            Section(
                 locomotion_table(runs),
                 _key_columns("task", "backend", "num_envs", "epochs", "horizon", "env_steps", "algo", "seeds")
                 + [
@@ -309,44 +369,67 @@ def returns_document(runs: list[RunRecord]) -> Table:
             "nothing and is the mean. 95% CI: percentile bootstrap over seeds, "
             f"{BOOTSTRAP_RESAMPLES} resamples, `np.random.default_rng({BOOTSTRAP_SEED})` "
             "(`scipy.stats.bootstrap`; one task and backend per row is one stratum, so rliable's stratified "
-            "bootstrap is this plain one). n/a under 2 seeds. mean ± std: sample std (n - 1).",
-            "IQM improvement: IQM(algo) - IQM(base) at the same task, backend, h, N and epochs (base of shac-tdfixed "
-            "and shac-tdadpt is shac, of sapo-tdfixed and sapo-tdadpt sapo), 95% CI from a two-sample unpaired "
-            "percentile bootstrap (each algorithm's seeds resampled on their own), n/a under 2 seeds on a side.",
-            "P(algo > base): rliable's probability of improvement (`rliable.metrics.probability_of_improvement`: "
-            "the chance that a random seed of the algorithm scores above a random seed of its base, ties counting "
-            "half; 0.5 is no difference), 95% CI from rliable's stratified independent bootstrap "
-            f"({BOOTSTRAP_RESAMPLES} resamples); n/a under 2 seeds on a side.",
-            "Detectable at 80% power: the smallest true difference of mean final returns between the algorithm "
-            "and its base that a two-sided two-sample t-test at level 0.05 detects with probability 0.8 at the "
-            "seeds they have, (t_0.975 + t_0.8) s sqrt(1/n1 + 1/n2), s the pair's pooled between-seed std; an "
-            "improvement below it is not evidence either way. Power table: the std pooled over every algorithm "
-            "of a setting, and the seeds per algorithm at which that test detects +25%, +50% and +100% of the base "
-            "algorithms' (shac, sapo) mean return (blank: over 10,000).",
+            "bootstrap is this plain one), descriptive: at 5 seeds it covers less than 95% "
+            "(results/statistics/coverage.md). n/a under 2 seeds. mean ± std: sample std (n - 1).",
+            "IQM improvement: IQM(algo) - IQM(base) at the same task, backend, h, N and epochs (base of "
+            "shac-tdfixed and shac-tdadpt is shac, of sapo-tdfixed and sapo-tdadpt sapo); P(algo > base): "
+            "rliable's probability of improvement (`rliable.metrics.probability_of_improvement`: the chance "
+            "that a random seed of the algorithm scores above a random seed of its base, ties counting half; "
+            "0.5 is no difference). Both descriptive, without an interval: the verdicts are the claims "
+            "table's, and a percentile bootstrap of P at 5 seeds covers far less than 95% "
+            "(results/statistics/coverage.md).",
+            "Detectable at 80% power (paired): the smallest true difference of mean final returns between the "
+            "algorithm and its base that a two-sided paired t-test at level 0.05 detects with probability 0.8 "
+            "over the seeds both have, (t_0.975 + t_0.8) s_d / sqrt(n) at n - 1 degrees of freedom, s_d the std "
+            "of the seed-paired differences; an improvement below it is not evidence either way. Power table: "
+            "per algorithm family (a base and its TD-lambda variants), the between-seed std pooled over the "
+            "family's algorithms, and the seeds per algorithm at which a two-sample t-test detects +25%, +50% "
+            "and +100% of the base's mean return (blank: over 10,000), a planning figure.",
             "Forward velocity: the final policy's velocity along +x (the root's; the SoftJumper's centre of "
             "mass), each env's mean over its first episode, averaged over envs and eval seeds; IQM and CI over "
             "training seeds as for the return. It says whether a policy moves forward at all, whatever the "
             "reward's other terms pay; over the training seeds whose evaluation recorded it (the cell says how "
             "many when not all did), n/a when none did.",
-            "The paper's claims: each claimed improvement of a TD-lambda variant over its base (ARE: Fig. 5 for "
-            "the Ant, Fig. 9 and the abstract for the Go2), as the relative change of the mean final return, "
-            "mean(algo) / mean(base) - 1 (the paper normalises by the base's mean), at every setting where both "
-            "have evaluated runs; for the Go2's SHAC-TDAdpt also of the mean forward velocity (the paper says "
-            "SHAC acquires no forward locomotion: does TD-lambda about double it?), no ratio where the base's "
-            "mean is not positive. 95% CI: the ratios r for which Welch's two-sample t-test of mean(algo) = r "
-            "mean(base) does not reject at level 0.05 (a Fieller-type interval; unbounded where the base's seeds "
-            "do not tell its mean from 0, as at 2 seeds of a noisy base), chosen over a bootstrap because it "
-            "keeps its coverage at 2-5 seeds. Verdict: confirmed "
-            "when the CI lies above 0 and holds the claimed size (or lies above it: larger than claimed); an "
-            "improvement smaller than claimed when it lies above 0 and below the claimed size; contradicted when "
-            "it lies below the claimed size without excluding 0, or below 0; undecided when it holds both 0 and "
-            "the claimed size. The paper's budget is N 64, h 32, 2000 epochs; a verdict at another setting "
-            "speaks of that setting only.",
+            "The paper's claims, by the analysis plan fixed in docs/statistics.md before the runs it decides: "
+            "each claimed improvement of a TD-lambda variant over its base (ARE: Fig. 5 for the Ant, Fig. 9 and "
+            "the abstract for the Go2) as the relative change of the mean final return, mean(algo) / mean(base) -"
+            " 1 (the paper normalises by the base's mean), over the seeds both algorithms have evaluated (seed s "
+            "gives both the same initial policy and environments: a paired design); for the Go2's SHAC-TDAdpt "
+            "also of the mean forward velocity. Interval: the paired Fieller interval (the ratios r whose paired "
+            "t-test of algo - r base does not reject), unbounded where the base's mean is not told from 0. Seeds "
+            "arrive in a group-sequential design: looks at 5 and 10 seed pairs, 0.025 of the error spent at each "
+            "(97.5% intervals, Bonferroni), a look reads its own first pairs only, a claim decided at a look "
+            "keeps that look's verdict, and one undecided at the first look stops there when futile (conditional "
+            "power under 0.10: were the next pairs to come from what the first five show, under 10% of 2,000 "
+            "simulated completions would decide). Verdict: confirmed when the interval lies above 0 and does not "
+            "lie below the claimed size; contradicted when it lies below the claimed size at the paper's protocol"
+            " (N 64, h 32, 2000 epochs), not confirmed at this budget when it does so at another setting; "
+            "undecided when it holds both 0 and the claimed size. Design: what the design does next (continue, "
+            "decided, futile, last look) and the seeds per algorithm it asks for, which `bench --profile "
+            "protocol` plans. Descriptive only, never a verdict: each side's IQM, rliable's probability of "
+            "improvement over the pairs' seeds (its bootstrap interval under-covers at these seeds, so none is "
+            "shown) and the exact sign-flip p-value of the paired differences (its smallest value at 5 pairs is "
+            "0.0625). Spent: env steps and training wall time (core-hours) of both algorithms' runs the look "
+            "read; a base's runs count for each claim that reads them.",
             'The learned lambda (Fig. 4b: it "gradually decreases over time"): per finished run of an '
             "adaptive-lambda algorithm, lambda after its first and its last epoch; change: last - first, mean "
             "over seeds with the 95% CI of a one-sample t-test; epochs lambda fell: the share of epochs whose "
             "update lowered it, averaged over seeds. Verdict: confirmed when the CI lies below 0, contradicted "
             "when above, undecided otherwise. Its course per epoch: lambda_alpha.png.",
+            "The learned lambda's pace (Fig. 4b judged on what the optimiser allows): lambda = sigmoid(phi) and "
+            "phi takes one AdamW step per lambda update, about the learning rate in size whenever the gradient "
+            "keeps its sign, so a fall in every epoch says only that the sign never turned. Per finished run, "
+            "the change of phi from logit(0.95) to its final value against the limit updates x learning rate; "
+            "verdict: at the optimiser's rate limit when every seed used 90% of it or more (the data set only "
+            "the sign), slower than the optimiser allows when phi fell (95% t CI over seeds below 0) using "
+            "less (the data, or the gradient's varying size, set the pace), undecided otherwise.",
+            "Actor-gradient variance over training (Fig. 2): per run the median over epochs of the logged "
+            "variance (raw, and the scale-free noise-to-signal ratio), per seed pair variant / base; the ratio "
+            "is the geometric mean over pairs with the 95% t interval of the paired log-ratios. Verdict: "
+            "confirmed when the interval lies below 1, contradicted above 1 at the paper's protocol (not "
+            "confirmed at this budget elsewhere), undecided otherwise. The levels are shown beside the paper's "
+            "descriptively: the variance scales with the loss, whose normalisation differs between "
+            "implementations. The curves: grad_variance_training.png.",
             f"Forward locomotion: a policy moves forward when its forward velocity (as above) reaches "
             f"{LOCOMOTION_SPEED} m/s, a slow walk for a legged robot of the Go2's or the Ant's size and above the "
             "drift of a policy that stands still or falls over (the untrained policies' column shows that "
@@ -379,7 +462,7 @@ def aggregate_document(runs: list[RunRecord]) -> Table:
                     ("95% CI", lambda r: fmt_ci(r["iqm_ci_low"], r["iqm_ci_high"])),
                     ("vs base", lambda r: r["base"] if isinstance(r["base"], str) else ""),
                     ("P(algo > base) across tasks", "p_improvement"),
-                    ("P 95% CI", lambda r: fmt_ci(r["p_improvement_ci_low"], r["p_improvement_ci_high"])),
+                    ("P 95% CI (descriptive)", lambda r: fmt_ci(r["p_improvement_ci_low"], r["p_improvement_ci_high"])),
                     ("settings", "settings"),
                 ],
                 empty="no task has evaluated runs that improved on the untrained policy",

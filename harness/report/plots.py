@@ -541,6 +541,7 @@ PLOT_DESCRIPTIONS = {
     "grad_variance_vs_h.png": "raw and scale-free actor-gradient statistics vs h, seeds' 95% CIs, log-log",
     "returns_vs_h.png": "final eval return vs h at one budget, IQM with 95% CI over training seeds",
     "lambda_alpha.png": "lambda and SAPO's alpha per epoch, per task",
+    "grad_variance_training.png": "Fig. 2: actor-gradient variance over training (EMA), mean and min-max over seeds",
     "wall_time.png": "seconds per epoch split into simulation, backward and updates",
     "throughput.png": "env-steps/s forward and forward+backward per backend x task, log y",
     "scaling.png": "env-steps/s forward and forward+backward against the number of envs, log-log",

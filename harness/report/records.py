@@ -89,8 +89,27 @@ class RunRecord:
         return self.evaluation["initial"]["mean_return"] if self.evaluation else None
 
 
+#: AlgoConfig fields an ablation varies, with the paper's values (Fig. 6: b_lambda, m_lambda): a run that
+#: differs in one is labelled apart (:func:`algo_label`), so it never pools as a seed of the algorithm's own row
+ABLATION_FIELDS = (("lambda_batches", "b_lambda", 1), ("lambda_iterations", "m_lambda", 1.0))
+
+
+def algo_label(algo: str, algo_cfg: dict) -> str:
+    """The algorithm as tables name it: ``sapo-tdadpt``, or ``sapo-tdadpt (b_lambda 4, m_lambda 2)`` for a run
+    of an ablation setting (:data:`ABLATION_FIELDS`; a field a run's config does not record has the paper's
+    value)."""
+    changed = [
+        f"{symbol} {algo_cfg[field]:g}"
+        for field, symbol, paper in ABLATION_FIELDS
+        if isinstance(algo_cfg.get(field), int | float) and float(algo_cfg[field]) != paper
+    ]
+    return f"{algo} ({', '.join(changed)})" if changed else algo
+
+
 def base_algo(algo: str) -> str:
-    """The algorithm a TD-lambda variant modifies: ``shac-tdadpt`` -> ``shac``; a base is its own base."""
+    """The algorithm a TD-lambda variant modifies: ``shac-tdadpt`` -> ``shac``; a base is its own base; an
+    ablation's label (:func:`algo_label`) has its algorithm's base."""
+    algo = algo.split(" (", 1)[0]
     for suffix in VARIANT_SUFFIXES:
         if algo.endswith(suffix):
             return algo[: -len(suffix)]
@@ -202,7 +221,7 @@ def load_run(run_dir: Path, stream=None) -> RunRecord | None:
         path=run_dir,
         task=task_label(task, config),
         backend=backend_label(backend, config),
-        algo=algo,
+        algo=algo_label(algo, algo_cfg),
         horizon=horizon,
         seed=seed,
         num_envs=algo_cfg.get("num_envs"),

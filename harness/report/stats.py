@@ -11,8 +11,10 @@ Every CI uses a fresh ``np.random.default_rng(0)``, so a row's CI depends on its
 tables are reproducible.
 
 Also here: the difference of two IQMs and the ratio of two geometric means with two-sample (unpaired)
-bootstrap CIs, the relative change of two means with the CI of an inverted Welch t-test (the paper's
-claims), the mean with a one-sample t CI (the learned lambda's course), the geometric mean with its CI,
+bootstrap CIs; for the paper's claims, which the seeds pair (seed s: the same initial policy and
+environments for every algorithm), the relative change of the means with its paired Fieller interval,
+the paired t interval and the exact sign-flip p-value (docs/statistics.md, the analysis plan); the mean
+with a one-sample t CI (the learned lambda's course), the geometric mean with its CI,
 the median over a run's logged epochs, the sample std, and the statistical power of a two-sample
 comparison (the smallest detectable difference, the seeds needed).
 """
@@ -23,7 +25,7 @@ import math
 from collections.abc import Iterable
 
 import numpy as np
-from scipy import optimize, stats
+from scipy import stats
 
 IQM_TRIM = 0.25  # cut 25% at each end: the mean of the middle half (rliable's IQM)
 BOOTSTRAP_RESAMPLES = 2000
@@ -67,69 +69,93 @@ def iqm_with_ci(values: Iterable[float]) -> tuple[float, float, float]:
     return point, *_percentile_ci((x,), _iqm_along)
 
 
-def iqm_difference_with_ci(variant: Iterable[float], base: Iterable[float]) -> tuple[float, float, float]:
-    """IQM(variant) - IQM(base) with a 95% CI from a two-sample (unpaired) percentile bootstrap.
-
-    Unpaired: seed s of a variant and seed s of its base share nothing but the number, so each sample is
-    resampled on its own. NaN bounds when either side has fewer than 2 seeds.
-    """
-    v, b = np.asarray(list(variant), dtype=float), np.asarray(list(base), dtype=float)
-    point = iqm(v) - iqm(b)
-    if v.size < 2 or b.size < 2:
-        return point, math.nan, math.nan
-    return point, *_percentile_ci((v, b), lambda x, y, axis=-1: _iqm_along(x, axis) - _iqm_along(y, axis))
-
-
-def relative_mean_change_with_ci(variant: Iterable[float], base: Iterable[float]) -> tuple[float, float, float]:
-    """mean(variant) / mean(base) - 1 (the paper's Fig. 5 normalises by the base's mean) with a 95% CI
-    that keeps its coverage at a handful of seeds: the ratios r that Welch's two-sample t-test of
-    mean(variant) = r mean(base) (the variant's seeds against r x the base's) does not reject at level 0.05,
-    the interval around the estimate (a Fieller-type interval; :func:`_welch_margin`). A bound is infinite
-    where no ratio that far is rejected: the base's own mean is then not told from 0 by its seeds. NaN bounds
-    under 2 seeds a side, all NaN when the base's mean is not positive (a ratio to it says nothing).
-
-    Not a bootstrap: at 2-3 seeds a side a percentile bootstrap of a mean spans little more than the
-    seeds' range and covers far less than 95%, so a verdict read from it would claim what it cannot."""
-    v, b = np.asarray(list(variant), dtype=float), np.asarray(list(base), dtype=float)
-    if not v.size or not b.size or not b.mean() > 0.0:
-        return (math.nan,) * 3
-    point = float(v.mean() / b.mean() - 1.0)
-    if v.size < 2 or b.size < 2:
-        return point, math.nan, math.nan
-    if v.var() == 0.0 and b.var() == 0.0:
-        return point, point, point  # no spread: the ratio is known exactly
-    ratio = point + 1.0
-    bounds = []
-    for direction in (-1.0, 1.0):
-        step, inside = max(abs(ratio), 1.0), ratio
-        while _welch_margin(v, b, ratio + direction * step) < 0.0:  # widen until a rejected ratio brackets the bound
-            inside, step = ratio + direction * step, 2.0 * step
-            if step > 1e12 * max(abs(ratio), 1.0):
-                inside = direction * math.inf
-                break
-        if math.isfinite(inside):
-            outside = ratio + direction * step
-            inside = optimize.brentq(lambda r: _welch_margin(v, b, r), inside, outside, xtol=1e-10, rtol=1e-12)
-        bounds.append(inside - 1.0)
-    return point, bounds[0], bounds[1]
-
-
 def _t_critical(dof: float) -> float:
     """The two-sided critical value of Student's t at ``CONFIDENCE`` with ``dof`` degrees of freedom."""
     return float(stats.t.ppf(1.0 - (1.0 - CONFIDENCE) / 2.0, dof))
 
 
-def _welch_margin(variant: np.ndarray, base: np.ndarray, ratio: float) -> float:
-    """|t| - t_crit of Welch's two-sample t-test between ``variant`` and ``ratio`` x ``base`` (level 0.05,
-    two-sided, Welch-Satterthwaite degrees of freedom): negative where the test accepts."""
-    var_v = variant.var(ddof=1) / variant.size
-    var_b = ratio**2 * base.var(ddof=1) / base.size
-    spread = var_v + var_b
-    if spread == 0.0:  # no spread left (a constant variant against 0 x the base): equal or not, exactly
-        return -math.inf if variant.mean() == ratio * base.mean() else math.inf
-    statistic = (variant.mean() - ratio * base.mean()) / math.sqrt(spread)
-    dof = spread**2 / (var_v**2 / (variant.size - 1) + var_b**2 / (base.size - 1))
-    return abs(statistic) - _t_critical(dof)
+# -- the paired design (seed s of every algorithm: the same initial policy and environments) ------------
+def paired_ratio_ci(variant: Iterable[float], base: Iterable[float], confidence: float = CONFIDENCE) -> tuple:
+    """mean(variant) / mean(base) - 1 over seed-paired values (``variant[i]`` and ``base[i]`` share seed i),
+    with the paired Fieller interval at ``confidence``: the ratios r for which the one-sample t-test of
+    d_i(r) = variant_i - r base_i having mean 0 (n - 1 degrees of freedom) does not reject, minus 1.
+
+    That set solves a quadratic in r, (mean_v - r mean_b)^2 <= (t^2 / n) var(v - r b). It is a bounded
+    interval when the base's mean is told from 0 at this level (the quadratic's leading coefficient
+    mean_b^2 - (t^2/n) var_b is positive); otherwise it is unbounded and reported as (-inf, inf). Paired
+    because the seeds are (common random numbers): the variance of v - r b carries the seeds' covariance,
+    so the interval keeps its level whatever the sign of the correlation, where an unpaired (Welch) interval
+    is too narrow when the algorithms' seeds are negatively correlated and too wide when positively.
+    Returns (point, low, high); NaN bounds under 2 pairs, all NaN when the base's mean is not positive."""
+    v, b = np.asarray(list(variant), dtype=float), np.asarray(list(base), dtype=float)
+    if v.shape != b.shape:
+        raise ValueError(f"paired samples differ in size: {v.size} against {b.size}")
+    if not v.size or not b.mean() > 0.0:
+        return (math.nan,) * 3
+    point = float(v.mean() / b.mean() - 1.0)
+    if v.size < 2:
+        return point, math.nan, math.nan
+    low, high = paired_ratio_bounds(v, b, confidence)
+    return point, float(low), float(high)
+
+
+def paired_ratio_bounds(variant: np.ndarray, base: np.ndarray, confidence: float) -> tuple[np.ndarray, np.ndarray]:
+    """The paired Fieller bounds of mean(variant) / mean(base) - 1 along the last axis (n >= 2 pairs), for
+    many samples at once (the planner's and the coverage simulations' draws): (-inf, inf) where the
+    quadratic's leading coefficient is not positive. :func:`paired_ratio_ci` is the one-sample entry."""
+    v, b = np.asarray(variant, dtype=float), np.asarray(base, dtype=float)
+    n = v.shape[-1]
+    k = float(stats.t.ppf(1.0 - (1.0 - confidence) / 2.0, n - 1)) ** 2 / n
+    mv, mb = v.mean(axis=-1), b.mean(axis=-1)
+    var_v, var_b = v.var(axis=-1, ddof=1), b.var(axis=-1, ddof=1)
+    cov = ((v - mv[..., None]) * (b - mb[..., None])).sum(axis=-1) / (n - 1)
+    a = mb**2 - k * var_b
+    half_b = mv * mb - k * cov  # the quadratic a r^2 - 2 half_b r + c <= 0
+    c = mv**2 - k * var_v
+    root = np.sqrt(np.maximum(half_b * half_b - a * c, 0.0))  # >= 0 when a > 0: r = mv / mb solves it
+    bounded = a > 0.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        low = np.where(bounded, (half_b - root) / a - 1.0, -np.inf)
+        high = np.where(bounded, (half_b + root) / a - 1.0, np.inf)
+    return low, high
+
+
+def paired_mean_ci(differences: Iterable[float], confidence: float = CONFIDENCE) -> tuple[float, float, float]:
+    """The mean of seed-paired differences with the one-sample t interval at ``confidence``; NaN bounds
+    under 2 pairs."""
+    d = np.asarray(list(differences), dtype=float)
+    if not d.size:
+        return (math.nan,) * 3
+    mean = float(d.mean())
+    if d.size < 2:
+        return mean, math.nan, math.nan
+    margin = float(stats.t.ppf(1.0 - (1.0 - confidence) / 2.0, d.size - 1)) * float(d.std(ddof=1)) / math.sqrt(d.size)
+    return mean, mean - margin, mean + margin
+
+
+def paired_t_rejects(differences: np.ndarray, confidence: float) -> bool:
+    """Whether the two-sided one-sample t-test of mean 0 rejects at level 1 - ``confidence`` (False under 2
+    pairs; a constant nonzero sample rejects)."""
+    d = np.asarray(differences, dtype=float)
+    if d.size < 2:
+        return False
+    spread = float(d.std(ddof=1))
+    if spread == 0.0:
+        return bool(d.mean() != 0.0)
+    t = abs(float(d.mean())) / (spread / math.sqrt(d.size))
+    return t > float(stats.t.ppf(1.0 - (1.0 - confidence) / 2.0, d.size - 1))
+
+
+def sign_flip_p_value(differences: Iterable[float]) -> float:
+    """The exact two-sided sign-flip (paired permutation) p-value of the mean of paired differences: the share
+    of the 2^n sign patterns whose |mean| reaches the observed one. Its smallest value is 2 / 2^n (0.0625 at
+    5 pairs), which is why it cannot decide at 5 seeds and is shown beside the t-test, not instead of it."""
+    d = np.asarray(list(differences), dtype=float)
+    if d.size < 1 or d.size > 20:
+        return math.nan
+    signs = 1 - 2 * ((np.arange(2**d.size)[:, None] >> np.arange(d.size)) & 1)
+    means = np.abs((signs * d).mean(axis=1))
+    return float(np.mean(means >= abs(d.mean()) - 1e-12 * max(1.0, abs(d.mean()))))
 
 
 def mean_with_t_ci(values: Iterable[float]) -> tuple[float, float, float]:
@@ -184,6 +210,16 @@ def minimum_detectable_difference(spread: float, n1: int, n2: int) -> float:
         return math.nan
     t = stats.t.ppf(1 - ALPHA / 2, dof) + stats.t.ppf(POWER, dof)
     return float(t * spread * math.sqrt(1 / n1 + 1 / n2))
+
+
+def paired_minimum_detectable_difference(spread: float, pairs: int) -> float:
+    """The smallest true mean difference a two-sided paired t-test (level ALPHA) detects with probability
+    POWER over ``pairs`` seed pairs whose differences have standard deviation ``spread``:
+    (t_(1-a/2) + t_power) s / sqrt(n) at n - 1 degrees of freedom."""
+    if pairs < 2 or not math.isfinite(spread):
+        return math.nan
+    t = stats.t.ppf(1 - ALPHA / 2, pairs - 1) + stats.t.ppf(POWER, pairs - 1)
+    return float(t * spread / math.sqrt(pairs))
 
 
 def seeds_needed(spread: float, difference: float, limit: int = 10_000) -> int | None:
@@ -246,7 +282,7 @@ def _aggregate_iqm(scores: TaskScores) -> float:
     return float(metrics.aggregate_iqm(flat[:, None]))
 
 
-def _probability_of_improvement(x: TaskScores, y: TaskScores) -> float:
+def probability_of_improvement(x: TaskScores, y: TaskScores) -> float:
     from rliable import metrics
 
     per_task = [
@@ -291,7 +327,7 @@ def aggregate_iqm_with_ci(scores: TaskScores) -> tuple[float, float, float]:
 def probability_of_improvement_with_ci(x: TaskScores, y: TaskScores) -> tuple[float, float, float]:
     """rliable's probability of improvement of X over Y (P(X_m > Y_m) averaged over tasks m), with the
     95% CI of its stratified independent bootstrap; NaN bounds when a side has under 2 runs on every task."""
-    point = _probability_of_improvement(x, y)
+    point = probability_of_improvement(x, y)
     if max(len(s) for s in x) < 2 or max(len(s) for s in y) < 2:
         return point, math.nan, math.nan
     rng = np.random.default_rng(BOOTSTRAP_SEED)

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from harness.report.aggregate import headline_settings, plot_performance_profiles
 from harness.report.documents import Table, build_tables, header_lines, markdown_rows, write_table
+from harness.report.free_claims import judged_curves, plot_gradient_variance_curves
 from harness.report.plots import (
     PLOT_DESCRIPTIONS,
     NoPlotData,
@@ -57,6 +58,7 @@ def write_bench_report(runs: list[Path], checks: list[Path], out_dir: Path, head
         ("grad_variance_vs_h.png", lambda p: plot_grad_variance(main["grad_variance_vs_h"], p)),
         ("returns_vs_h.png", lambda p: plot_returns_vs_h(main["returns_vs_h"], p)),
         ("lambda_alpha.png", lambda p: plot_lambda_alpha(records, p)),
+        ("grad_variance_training.png", lambda p: plot_gradient_variance_curves(judged_curves(records), p)),
         ("wall_time.png", lambda p: plot_wall_time(main["wall_time"], p)),
         ("throughput.png", lambda p: plot_throughput(main["throughput"], p)),
         ("scaling.png", lambda p: plot_scaling(scaling_rows(check_records), p)),
