@@ -120,32 +120,6 @@ def paired_ratio_bounds(variant: np.ndarray, base: np.ndarray, confidence: float
     return low, high
 
 
-def paired_mean_ci(differences: Iterable[float], confidence: float = CONFIDENCE) -> tuple[float, float, float]:
-    """The mean of seed-paired differences with the one-sample t interval at ``confidence``; NaN bounds
-    under 2 pairs."""
-    d = np.asarray(list(differences), dtype=float)
-    if not d.size:
-        return (math.nan,) * 3
-    mean = float(d.mean())
-    if d.size < 2:
-        return mean, math.nan, math.nan
-    margin = float(stats.t.ppf(1.0 - (1.0 - confidence) / 2.0, d.size - 1)) * float(d.std(ddof=1)) / math.sqrt(d.size)
-    return mean, mean - margin, mean + margin
-
-
-def paired_t_rejects(differences: np.ndarray, confidence: float) -> bool:
-    """Whether the two-sided one-sample t-test of mean 0 rejects at level 1 - ``confidence`` (False under 2
-    pairs; a constant nonzero sample rejects)."""
-    d = np.asarray(differences, dtype=float)
-    if d.size < 2:
-        return False
-    spread = float(d.std(ddof=1))
-    if spread == 0.0:
-        return bool(d.mean() != 0.0)
-    t = abs(float(d.mean())) / (spread / math.sqrt(d.size))
-    return t > float(stats.t.ppf(1.0 - (1.0 - confidence) / 2.0, d.size - 1))
-
-
 def sign_flip_p_value(differences: Iterable[float]) -> float:
     """The exact two-sided sign-flip (paired permutation) p-value of the mean of paired differences: the share
     of the 2^n sign patterns whose |mean| reaches the observed one. Its smallest value is 2 / 2^n (0.0625 at
