@@ -30,6 +30,11 @@
 * ``[[landscape]]``: runs of the grid (selected as for sim-to-sim, ``backend`` for ``train_backend``)
   whose h-step and TD-lambda actor losses are mapped over a ``grid`` x ``grid`` plane (``span``,
   ``num_envs``);
+* ``[[step_gain]]``: runs of the grid (selected as for a landscape) whose one-step Jacobian gains are
+  measured along their final policy (``states``, ``stride``, ``num_envs``; Proposition 1,
+  :mod:`harness.step_gain`);
+* analysis blocks select runs without hyperparameters unless they name the runs' ``hyperparameters``
+  (an ablation's), and skip, with a line, finished runs whose final checkpoint was not kept;
 * ``[[render]]``: runs of the grid (selected as for a landscape) whose final policy is rendered
   (``max_steps``, ``frames``, ``compare`` for both engines side by side): a video and a filmstrip in the
   run's folder, the filmstrips shown in the report's index.
@@ -374,7 +379,7 @@ class Job:
     """One process of the suite: its command, the file whose presence (and content) means done, its cost."""
 
     label: str
-    kind: str  # train, gradcheck, throughput, crosscheck, sim_to_sim, landscape
+    kind: str  # train, a check's kind, sim_to_sim, landscape, step_gain, render
     argv: list[str]
     output: Path
     estimate_s: float
@@ -718,6 +723,7 @@ def plan(data: dict, store: Path, stream=None) -> list[Job]:
         would select both is refused rather than silently given one of them."""
         epochs, train_envs = block.get("epochs"), block.get("train_num_envs")
         options = tuple(sorted(block.get("backend_options", {}).items()))  # the runs' adapter options
+        hyperparameters = tuple(sorted(block.get("hyperparameters", {}).items()))  # an ablation's runs
         found = [
             job
             for job in train_jobs
@@ -730,6 +736,7 @@ def plan(data: dict, store: Path, stream=None) -> list[Job]:
             and (epochs is None or job.run.epochs == int(epochs))
             and (train_envs is None or job.run.num_envs == int(train_envs))
             and job.run.backend_options == options
+            and job.run.hyperparameters == hyperparameters
         ]
         if not found:
             raise RunError(f"{where}: selects no run of the [[train]] grid; it needs runs to analyse")
@@ -772,9 +779,26 @@ def plan(data: dict, store: Path, stream=None) -> list[Job]:
                     )
                 )
 
+    from harness.run_folder import CHECKPOINT
+
+    def with_final_policy(sources: list[Job], where: str, output: str) -> list[Job]:
+        """``sources`` less the runs finished without their final checkpoint (a store whose checkpoints
+        were not kept) and without the analysis ``output`` made before: nothing can analyse their final
+        policy, so the block says so once and skips them."""
+        lost = [
+            j
+            for j in sources
+            if j.is_done() and not (j.run_dir / CHECKPOINT).is_file() and not (j.run_dir / output).is_file()
+        ]
+        if lost:
+            names = ", ".join(f"{j.run.algo} s{j.run.seed}" for j in lost)
+            print(f"{where}: skips {len(lost)} finished runs whose final policy was not kept: {names}", file=out_stream)
+        return [j for j in sources if j not in lost]
+
+    out_stream = stream or sys.stdout
     for i, block in enumerate(data.get("landscape", [])):
         where = f"[[landscape]] #{i + 1}"
-        for source in select(block, where, "backend"):
+        for source in with_final_policy(select(block, where, "backend"), where, "landscape.json"):
             grid, span = int(block.get("grid", 40)), float(block.get("span", 1.0))
             num_envs = int(block.get("num_envs", source.run.num_envs))
             out = source.run_dir / "landscape.json"
@@ -792,11 +816,42 @@ def plan(data: dict, store: Path, stream=None) -> list[Job]:
                     after=[source.label],
                 )
             )
+    for i, block in enumerate(data.get("step_gain", [])):
+        where = f"[[step_gain]] #{i + 1}"
+        for source in with_final_policy(select(block, where, "backend"), where, "step_gain.json"):
+            states, stride = int(block.get("states", 256)), int(block.get("stride", 8))
+            num_envs = int(block.get("num_envs", source.run.num_envs))
+            out = source.run_dir / "step_gain.json"
+            # the Jacobians (a backward pass per state coordinate, about 40, through the states and one window)
+            gradient_steps = 40 * (states + source.run.horizon * num_envs)
+            jobs.append(
+                Job(
+                    label=f"step gain {source.label}",
+                    kind="step_gain",
+                    argv=_harness(
+                        "step-gain",
+                        "--run",
+                        source.run_dir,
+                        "--states",
+                        states,
+                        "--stride",
+                        stride,
+                        "--num-envs",
+                        num_envs,
+                    ),
+                    output=out,
+                    estimate_s=_STARTUP_S
+                    + gradient_steps * _SECONDS_PER_ENV_STEP.get((source.run.backend, source.run.task), 3e-3),
+                    cost_key=("step_gain", source.run.backend, source.run.task),
+                    expect={"states": states, "stride": stride, "num_envs": num_envs},
+                    after=[source.label],
+                )
+            )
     from harness.render import compared_backends, record_stem
 
     for i, block in enumerate(data.get("render", [])):
         where = f"[[render]] #{i + 1}"
-        for source in select(block, where, "backend"):
+        for source in with_final_policy(select(block, where, "backend"), where):
             compare = bool(block.get("compare", False))
             max_steps, frames = int(block.get("max_steps", 300)), int(block.get("frames", 60))
             words = ["--max-steps", max_steps, "--frames", frames] + (["--compare"] if compare else [])

@@ -1,7 +1,7 @@
 """Accuracy versus cost of the MuJoCo-Warp adapter's finite-difference settings, with and without contact.
 
-Each row of ``GRID`` is a set of the adapter's options: the scheme (``fd_scheme``: central or forward
-differences), the steps (``fd_eps_state``, ``fd_eps_control``) and the perturbed worlds' solver
+Each row of ``GRID`` is a set of the adapter's options: the scheme (``fd_scheme``: central, forward,
+one_sided or adaptive differences), the steps (``fd_eps_state``, ``fd_eps_control``) and the perturbed worlds' solver
 settings (``fd_warmstart``: each world's own warm start from zero, or the nominal world's carried
 into its perturbed worlds at every substep; ``fd_tolerance``: the perturbed worlds' solver tolerance,
 0 running the full iteration count). Every row is compared on the same states with the float64 MuJoCo
@@ -24,7 +24,8 @@ the control step is varied after it, at the adapter's default scheme, by the fac
 targets).
 
 Cost: the seconds of one control step with gradients (:meth:`MujocoWarpSim.fd_jacobians`, best of
-``windows`` after a warm-up) for ``timing_envs`` envs on the ground, and the worlds it steps.
+``windows`` after a warm-up) for ``timing_envs`` envs on the ground, and the worlds it steps (for
+``adaptive``, its nominal and +eps worlds plus the mean share of -eps worlds it added in contact).
 """
 
 from __future__ import annotations
@@ -68,8 +69,12 @@ GRID = (
         "fd_tolerance": 0.0,
     },
     {"fd_scheme": "forward", "fd_eps_state": 2.5e-4, "fd_eps_velocity": 3e-2},
+    {"fd_scheme": "one_sided", "fd_eps_state": 5e-4, "fd_eps_velocity": 5e-4},  # the adapter's default
     {"fd_scheme": "one_sided", "fd_eps_state": 5e-4, "fd_eps_velocity": 1e-2},
     {"fd_scheme": "one_sided", "fd_eps_state": 2.5e-4, "fd_eps_velocity": 1e-2},
+    {"fd_scheme": "adaptive", "fd_eps_state": 2.5e-4, "fd_eps_velocity": 2.5e-4},
+    {"fd_scheme": "adaptive", "fd_eps_state": 2.5e-4, "fd_eps_velocity": 1e-2},
+    {"fd_scheme": "adaptive", "fd_eps_state": 5e-4, "fd_eps_velocity": 5e-4},
 )
 #: the control step's rows: the adapter's default settings with the control step times each factor
 CONTROL_FACTORS = (0.01, 0.1, 10.0)
@@ -155,6 +160,15 @@ def _step_seconds(sim, windows: int) -> float:
     return best
 
 
+def _worlds_per_env(sim, second_sides: list[float]) -> float:
+    """The worlds one env stepped per control step: the scheme's fixed batch, and for ``adaptive`` the
+    mean share of -eps worlds it added on the in-contact states (one per coordinate with a switch)."""
+    worlds = sim.worlds_per_env_with_grad
+    if sim.fd_scheme != "adaptive" or not second_sides:
+        return float(worlds)
+    return worlds + float(np.mean(second_sides)) * (worlds - 1)
+
+
 def _label(options: dict) -> str:
     return ", ".join(f"{k}={v}" for k, v in options.items())
 
@@ -170,10 +184,16 @@ def fd_schemes(
     grid=GRID,
     control_factors=CONTROL_FACTORS,
     progress=print,
+    schemes: tuple[str, ...] | None = None,
 ) -> dict:
     """One row per option set of ``grid``, then one per control-step factor; see the module
-    docstring. ``contact_states`` is rounded down to a multiple of ``num_envs``."""
+    docstring. ``contact_states`` is rounded down to a multiple of ``num_envs``. ``schemes``: only the
+    rows of these schemes (the control-step rows, the default scheme's, when it is among them)."""
     task = make_task(task_name)
+    if schemes is not None:
+        grid = [options for options in grid if options.get("fd_scheme") in schemes]
+        if fd_settings(task, {})["fd_scheme"] not in schemes:
+            control_factors = ()
     sampler = make("mujoco_warp", task, num_envs=num_envs, seed=seed)
     model = accurate_model(sampler.mjm)
     free, free_control = _contact_free(task, sampler, num_envs, seed)
@@ -183,9 +203,11 @@ def fd_schemes(
     for options in tuple(grid) + control_rows(task, control_factors):
         sim = make("mujoco_warp", task, num_envs=num_envs, seed=seed, **options)
         free_errors = [e["all"] for e in _errors(sim, free, free_control, free_refs)]
-        contact_errors, sticking = [], []
+        contact_errors, sticking, second_sides = [], [], []
         for engine, control, classes, refs in batches:
             errors = _errors(sim, engine, control, refs)
+            if sim.fd_scheme == "adaptive":
+                second_sides.append(sim.second_side_share)
             contact_errors += errors
             sticking += [e["all"] for e, c in zip(errors, classes, strict=True) if c["sticking"] and not c["onset"]]
         seconds = float("nan")
@@ -205,7 +227,7 @@ def fd_schemes(
             "fd_eps_control": sim.fd_eps_control,
             "fd_warmstart": sim.fd_warmstart,
             "fd_tolerance": sim.fd_tolerance,
-            "worlds_per_env": sim.worlds_per_env_with_grad,
+            "worlds_per_env": _worlds_per_env(sim, second_sides),
             "contact_free_error_max": float(max(free_errors)),
             "contact_states": int(contact.size),
             "contact_error_median": float(np.median(contact)) if contact.size else float("nan"),
@@ -226,7 +248,7 @@ def fd_schemes(
             "env_steps_per_s_with_grad": timing_envs / seconds if timing_envs else float("nan"),
         }
         progress(
-            f"  {_label(options)}: {row['worlds_per_env']} worlds/env, "
+            f"  {_label(options)}: {row['worlds_per_env']:.4g} worlds/env, "
             f"contact-free max {row['contact_free_error_max']:.1e}, "
             f"in contact median {row['contact_error_median']:.2g} ({row['contact_within_5pct']:.0%} within 5%; "
             + "/".join(f"{v:.2g}" for v in row["contact_error_median_by_kind"].values())
@@ -241,6 +263,7 @@ def fd_schemes(
         "settle": settle,
         "seed": seed,
         "windows": windows,
+        "schemes": list(schemes) if schemes is not None else None,
         "reference": "float64 MuJoCo C central differences (step 1e-6, solver tolerance 0) of the same control step",
         "rows": rows,
     }
@@ -274,7 +297,7 @@ def markdown(report: dict, command: str) -> str:
         lines.append(
             f"| {r['fd_scheme']} | {r['fd_eps_state']:g} | {r['fd_eps_velocity']:g} | {r['fd_eps_control']:g} "
             f"| {r['fd_warmstart']} "
-            f"| {tolerance} | {r['worlds_per_env']} | {r['contact_free_error_max']:.1e} "
+            f"| {tolerance} | {r['worlds_per_env']:.4g} | {r['contact_free_error_max']:.1e} "
             f"| {r['contact_error_median']:.2g} ({r['contact_states']}) | {r['contact_within_5pct']:.0%} "
             f"| {' / '.join(f'{v:.2g}' for v in r['contact_error_median_by_kind'].values())} "
             f"| {r['contact_spurious_gain_share']:.0%} ({r['contact_gain_ratio_max']:.3g}) "

@@ -127,7 +127,7 @@ def run_jobs(jobs: list[Job], store: Path, workers: int, name: str, stream=None,
                 while job is None:
                     pending = [j for j in jobs if j.state == "pending"]
                     # analyses of finished runs first: a stopped suite then has them for what it trained
-                    pending.sort(key=lambda j: j.kind not in ("sim_to_sim", "landscape", "render"))
+                    pending.sort(key=lambda j: j.kind not in ("sim_to_sim", "landscape", "step_gain", "render"))
                     if not pending or stop.is_set():
                         return
                     for candidate in pending:

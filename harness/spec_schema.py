@@ -26,6 +26,8 @@ from harness.results import RunError
 INT_MAX = 2**31 - 1  # seeds: torch.manual_seed and numpy generators take them; engines hash them as int32
 MAX_ENVS = 65_536
 MAX_GRID = 400
+MAX_STEP_GAIN_STATES = 65_536
+MAX_STRIDE = 1000
 MAX_EPOCHS = 10**6
 MAX_HORIZON = 10_000
 MAX_EVAL_SEEDS = 1000
@@ -198,6 +200,7 @@ SELECTION = {
     "epochs": integer(1, MAX_EPOCHS),
     "train_num_envs": integer(1, MAX_ENVS),
     "backend_options": _flat_options,
+    "hyperparameters": free_table,  # the runs' own (an ablation's); none selects runs without any
 }
 
 
@@ -241,6 +244,11 @@ LANDSCAPE = table(
     | {"num_envs": integer(1, MAX_ENVS)},
     required=("task", "backend"),
 )
+STEP_GAIN = table(
+    {**SELECTION, "backend": backend, "states": integer(1, MAX_STEP_GAIN_STATES), "stride": integer(1, MAX_STRIDE)}
+    | {"num_envs": integer(1, MAX_ENVS)},
+    required=("task", "backend"),
+)
 RENDER = table(
     {**SELECTION, "backend": backend, "compare": boolean}
     | {"max_steps": integer(1, 10**5), "frames": integer(1, 1000)},
@@ -276,6 +284,7 @@ SCHEMA = table(
         "check": _blocks(CHECK),
         "sim_to_sim": _blocks(SIM_TO_SIM),
         "landscape": _blocks(LANDSCAPE),
+        "step_gain": _blocks(STEP_GAIN),
         "render": _blocks(RENDER),
     },
     required=("suite",),
@@ -290,7 +299,7 @@ def validate_spec(data: dict, where: str = "spec") -> dict:
         SCHEMA(data, "")
     except RunError as exc:
         message = str(exc).removeprefix(": ")  # the top level's own path is empty
-        message = re.sub(r"^(train|check|sim_to_sim|landscape|render)\b", r"[[\1]]", message)
+        message = re.sub(r"^(train|check|sim_to_sim|landscape|step_gain|render)\b", r"[[\1]]", message)
         message = re.sub(r"^(suite|eval)\b", r"[\1]", message)
         raise RunError(message if message.startswith("[") else f"{where}: {message}") from None
     for k, block in enumerate(data.get("train", [])):

@@ -33,6 +33,26 @@ def test_the_claims_paired_interval_keeps_its_coverage_at_the_reports_seed_count
     assert max(measured.values()) <= 0.95 + TOLERANCE + 0.01, measured
 
 
+@pytest.mark.parametrize("n", (3, *LOOKS))
+def test_the_free_claims_log_ratio_interval_keeps_its_coverage_when_the_log_ratios_are_normal(n):
+    """Fig. 2's and Fig. 3's interval (t on paired log-ratios) at the policy counts those rows report,
+    on lognormal outcomes: the model the interval assumes."""
+    lognormal = [s for s in cov.log_scenarios() if s.name.startswith("lognormal (")]
+    assert len(lognormal) == 2
+    check_coverage("log_ratio_t", n, lognormal, 0.95)
+
+
+@pytest.mark.parametrize("n", (3, *LOOKS))
+def test_the_free_claims_log_ratio_interval_under_skew_falls_short_as_documented(n):
+    """With a fifth of the log-ratios jumping (one policy far rougher than the rest) the t interval
+    covers less than 95%: docs/statistics.md states the shortfall (about 0.93 at 3 to 10 pairs) and
+    this pins it, so a change in either shows here."""
+    skewed = [s for s in cov.log_scenarios() if "a fifth" in s.name]
+    assert len(skewed) == 2
+    measured = check_coverage("log_ratio_t", n, skewed, 0.95 - 0.04)
+    assert min(measured.values()) < 0.95 - 0.005, measured
+
+
 def test_the_two_looks_hold_the_truth_together_at_the_designs_level():
     """Both looks' 97.5% intervals cover at once in at least 95% of experiments: every stopping rule's
     interval (futility included) then covers at least as often."""

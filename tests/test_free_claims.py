@@ -1,7 +1,8 @@
-"""The two free claims (harness/report/free_claims.py) on synthetic runs whose numbers are known: Fig. 2's
+"""The free claims (harness/report/free_claims.py) on synthetic runs whose numbers are known: Fig. 2's
 gradient-variance comparison (paired log-ratios of per-run epoch medians, the verdict's cases, seeds that
-pair) and Fig. 4b's lambda against the optimiser's pace (the Adam step bound, where phi starts, the
-config's lambda optimiser, the two verdicts)."""
+pair), Fig. 4b's lambda against the optimiser's pace (the Adam step bound, where phi starts, the
+config's lambda optimiser, the two verdicts), Fig. 3's roughness ratio over final policies and
+Proposition 1's bound against the pooled one-step gains."""
 
 from __future__ import annotations
 
@@ -15,6 +16,8 @@ import pytest
 from scipy import stats
 
 from harness.report.free_claims import (
+    BOUND_FAILS,
+    BOUND_HOLDS,
     PACED,
     RATE_LIMITED,
     adam_step_bound,
@@ -22,7 +25,9 @@ from harness.report.free_claims import (
     gradient_variance_claim_table,
     gradient_variance_curves,
     lambda_rate_table,
+    landscape_claim_table,
     plot_gradient_variance_curves,
+    step_gain_claim_table,
 )
 from harness.report.records import RunRecord
 
@@ -218,3 +223,69 @@ def test_the_limit_follows_the_runs_lambda_optimiser(tmp_path):
     runs = [record(tmp_path / "b", "shac-tdadpt", s, {"lam": lam}, algo_config=half) for s in range(2)]
     row = row_of(lambda_rate_table(runs), algo="shac-tdadpt")
     assert row["updates"] == 3 and row["used_share"] == pytest.approx(1.0) and row["lambda_lr"] == 1e-3
+
+
+# -- Fig. 3 -----------------------------------------------------------------------------------------
+def landscape_run(root, algo, seed, h_step, td_lambda, planned=2000) -> RunRecord:
+    run = record(root, algo, seed, {"actor_grad_var": [1.0]}, planned=planned)
+    run.landscape = {"grid": 40, "span": 1.0, "num_envs": 16, "roughness": {"h_step": h_step, "td_lambda": td_lambda}}
+    return run
+
+
+def test_a_td_lambda_loss_smoother_on_every_policy_is_confirmed(tmp_path):
+    ratios = [1.8, 2.2, 2.0, 1.9]
+    runs = [landscape_run(tmp_path, "sapo-tdfixed", s, 0.5 * r, 0.5) for s, r in enumerate(ratios)]
+    row = landscape_claim_table(runs).iloc[0]
+    assert row["policies"] == 4 and row["verdict"] == "confirmed"
+    assert row["ratio"] == pytest.approx(math.exp(np.mean(np.log(ratios))))
+    logs = np.log(ratios)
+    margin = stats.t.ppf(0.975, 3) * logs.std(ddof=1) / 2.0
+    assert row["ratio_ci_low"] == pytest.approx(math.exp(logs.mean() - margin))
+
+
+@pytest.mark.parametrize(("planned", "verdict"), [(2000, "contradicted"), (500, "not confirmed at this budget")])
+def test_an_h_step_loss_smoother_contradicts_only_at_the_papers_protocol(tmp_path, planned, verdict):
+    runs = [landscape_run(tmp_path, "sapo", s, 0.5, 0.5 * r, planned) for s, r in enumerate([1.9, 2.1, 2.0])]
+    assert landscape_claim_table(runs).iloc[0]["verdict"] == verdict
+
+
+def test_one_policy_or_an_unmapped_surface_does_not_decide(tmp_path):
+    runs = [landscape_run(tmp_path, "sapo", 0, 2.0, 1.0), landscape_run(tmp_path, "sapo", 1, None, 1.0)]
+    row = landscape_claim_table(runs).iloc[0]
+    assert (row["policies"], row["unmapped"]) == (1, 1)
+    assert row["verdict"].startswith("undecided")
+
+
+# -- Proposition 1 ----------------------------------------------------------------------------------
+def gain_run(root, algo, seed, gains, growth=1.2, task="ant") -> RunRecord:
+    run = record(root, algo, seed, {"actor_grad_var": [1.0]}, task=task)
+    rows = [{"state_gain": g, "action_gain": 1.0, "joint_gain": g} for g in gains]
+    run.step_gain = {
+        "paper_bound": 1.0 / (0.99 * 0.95),
+        "rows": rows,
+        "window": {"per_step_growth": {"median": growth}},
+    }
+    return run
+
+
+def test_the_bound_is_read_on_the_pooled_95th_percentile(tmp_path):
+    # 96 of 100 states below the bound: the pooled 95th percentile is below, so it holds ...
+    calm = gain_run(tmp_path, "sapo", 0, [1.01] * 60 + [5.0] * 2)
+    calmer = gain_run(tmp_path, "sapo-tdfixed", 0, [1.02] * 36 + [6.0] * 2)
+    row = step_gain_claim_table([calm, calmer]).iloc[0]
+    assert (row["policies"], row["states"]) == (2, 100)
+    assert row["verdict"] == BOUND_HOLDS and row["share_above_bound"] == pytest.approx(0.04)
+    # ... and one more policy whose states are mostly above turns it
+    stiff = gain_run(tmp_path, "sapo-tdadpt", 0, [40.0] * 20)
+    row = step_gain_claim_table([calm, calmer, stiff]).iloc[0]
+    assert row["verdict"] == BOUND_FAILS and row["gain_p95"] == pytest.approx(40.0)
+    assert (row["gain_p95_min"], row["gain_p95_max"]) == (
+        pytest.approx(np.quantile([1.01] * 60 + [5.0] * 2, 0.95)),
+        40.0,
+    )
+
+
+def test_tasks_are_judged_apart(tmp_path):
+    runs = [gain_run(tmp_path, "shac", 0, [1.0] * 10), gain_run(tmp_path, "shac", 0, [9.0] * 10, task="go2")]
+    table = step_gain_claim_table(runs)
+    assert dict(zip(table["task"], table["verdict"], strict=True)) == {"ant": BOUND_HOLDS, "go2": BOUND_FAILS}

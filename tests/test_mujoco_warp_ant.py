@@ -217,7 +217,8 @@ def _tangent_rows(jac: np.ndarray, next_engine: np.ndarray) -> np.ndarray:
 #: the contacts' switches (``harness fd-schemes``: median error in contact ~1e-3 against 0.1-0.5 at 2e-3);
 #: off the ground they cost float32 round-off: A measures ~1e-3 (central) and ~3.4e-3 (forward), against
 #: ~6e-5 and ~8e-4 with the former steps (1e-2 and 2e-3)
-CONTACT_FREE_BOUND = {"central": 2e-3, "forward": 5e-3, "one_sided": 2e-3}  # one_sided: central without switches
+CONTACT_FREE_BOUND = {"central": 2e-3, "forward": 5e-3, "one_sided": 2e-3, "adaptive": 5e-3}
+# one_sided: central without switches; adaptive: forward without switches
 
 
 @pytest.mark.parametrize("scheme", FD_SCHEMES)
@@ -256,6 +257,85 @@ def test_one_sided_takes_the_side_without_a_switch(ant):
     quotients = sim._fd_quotients(torch.cat((nominal, plus, minus)))
     assert torch.allclose(quotients[0, 0], slope)  # the backward side, without the jump
     assert torch.allclose(quotients[1:, 0], slope.expand(p - 1, d))  # no switch: the central quotient
+
+
+def _settled(ant, n: int, seed: int):
+    """``n`` Ant states on the ground after 30 random steps, and random controls there."""
+    walker = make("mujoco_warp", ant, num_envs=n, seed=seed)
+    walker.reset()
+    gen = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for _ in range(30):
+            walker.step(_actions(n, gen))
+    return walker.state.engine.detach(), ant.actions_to_control(_actions(n, gen))
+
+
+def test_constraint_signatures_tell_constraint_sets_apart(ant):
+    """Worlds with the same state have the same signature at every substep; a world in the air (no
+    contact rows) and one on the ground differ, and so do ground worlds with different contacts."""
+    sim = make("mujoco_warp", ant, num_envs=4, seed=0, fd_scheme="adaptive")
+    engine, control = _settled(ant, 4, 0)
+    lifted = engine.clone()
+    lifted[0, 2] += 2.0
+    rows = torch.cat((engine, engine[:1], lifted[:1]))
+    marks: list[torch.Tensor] = []
+    sim._run_worlds(
+        rows[:, :15].float(), rows[:, 15:].float(), torch.cat((control, control[:2])).float(), signatures=marks
+    )
+    marks = torch.stack(marks)  # (substeps, 6, 2)
+    assert marks.shape == (ant.physics.substeps, 6, 2)
+    assert torch.equal(marks[:, 4], marks[:, 0])  # the same state: the same sets
+    assert not torch.equal(marks[:, 5], marks[:, 0])  # in the air: no contact rows
+    keys, valid = sim._signatures[6].row_keys()
+    assert int(valid[5].sum()) < int(valid[0].sum())
+
+
+def test_adaptive_is_forward_differences_in_the_air_and_pays_the_second_side_only_at_switches(ant):
+    """In the air no constraint switches: ``adaptive`` steps no -eps world and its Jacobians are forward
+    differences'. On the ground, each (env, coordinate) is the forward quotient where its +eps world kept
+    the nominal's constraint sets, else the backward quotient where the -eps world kept them, else the
+    smaller of the two: checked against quotients recomputed from central's worlds at the same steps."""
+    adaptive = make("mujoco_warp", ant, num_envs=4, seed=0, fd_scheme="adaptive")
+    forward = make("mujoco_warp", ant, num_envs=4, seed=0, fd_scheme="forward")
+    central = make("mujoco_warp", ant, num_envs=4, seed=0, fd_scheme="central", fd_eps_state=2.5e-4)
+    gen = torch.Generator().manual_seed(4)
+    q, qd = ant.sample_initial_state(4, gen)
+    q[:, 2] = 2.0
+    engine = adaptive.state_from_generalized(q, qd).engine.detach()
+    control = ant.actions_to_control(0.5 * _actions(4, gen))
+    air = adaptive.fd_jacobians(engine, control)
+    assert adaptive.second_side_share == 0.0
+    for mine, theirs in zip(air, forward.fd_jacobians(engine, control), strict=True):
+        assert torch.equal(mine, theirs)
+
+    engine, control = _settled(ant, 4, 1)
+    nominal, jac_state, jac_control = adaptive.fd_jacobians(engine, control)
+    assert 0.0 < adaptive.second_side_share < 0.5  # switches exist on the ground, in a few stencils
+    deltas = central._fd_deltas()
+    qpos, qvel, torque = central._retract(engine.double(), control.double(), deltas)
+    y = central._run_worlds(qpos.float(), qvel.float(), torque.float()).double().reshape(deltas.shape[0], 4, -1)
+    p, steps = deltas.shape[1], central._fd_steps.reshape(-1, 1, 1)
+    ahead, behind = (y[1 : 1 + p] - y[:1]) / steps, (y[:1] - y[1 + p :]) / steps
+    got = torch.cat((jac_state, jac_control), dim=2).permute(2, 0, 1)  # (P, n, D)
+    assert torch.equal(nominal, y[0].float())
+    is_forward = (got - ahead).norm(dim=-1) <= 1e-6 * ahead.norm(dim=-1).clamp_min(1.0)
+    is_backward = (got - behind).norm(dim=-1) <= 1e-6 * behind.norm(dim=-1).clamp_min(1.0)
+    assert bool((is_forward | is_backward).all())
+    share_backward = float((is_backward & ~is_forward).float().mean())
+    assert share_backward <= adaptive.second_side_share + 1e-9
+
+
+def test_adaptive_keeps_the_data_of_few_second_batch_sizes(ant):
+    sim = make("mujoco_warp", ant, num_envs=2, seed=0, fd_scheme="adaptive")
+    for size in (8, 12, 16, 24, 32, 48):
+        sim._data_for(size)
+        sim._hold_second_size(size, keep=2 * sim.worlds_per_env_with_grad)
+    assert set(sim._data) == {16, 24, 32, 48}
+
+
+def test_adaptive_is_refused_for_soft_bodies():
+    with pytest.raises(ValueError, match="fd_scheme adaptive"):
+        make("mujoco_warp", make_task("soft_jumper"), num_envs=1, fd_scheme="adaptive")
 
 
 def test_the_float64_whole_step_reference_agrees_with_mjd_transition_fd(sim, ant):

@@ -71,6 +71,7 @@ def test_scaling_writes_csv_json_and_plot_and_skips_what_would_take_too_long(tmp
         (["scaling", "--backend", "newton", "--task", "ant", "--envs", "0"], "positive integer"),
         (["scaling-plot", "--csv", "nowhere.csv", "--out", "x.png"], "no such scaling CSV"),
         (["fd-schemes", "--task", "soft_jumper"], "articulated tasks"),
+        (["fd-schemes", "--task", "ant", "--schemes", "adaptive", "backward"], "unknown scheme 'backward'"),
         (["throughput", "--backend", "newton", "--task", "ant", "--backend-option", "fd_scheme"], "KEY=VALUE"),
         (["gradcheck", "--backend", "newton", "--task", "ant", "--backend-option", "fd_scheme=forward"], "no option"),
         (
@@ -134,3 +135,25 @@ def test_fd_schemes_measures_forward_differences_against_the_float64_reference(t
     assert first["contact_states"] == 2 and 0.0 <= first["contact_error_median"] < float("inf")
     text = markdown(report, "cmd")
     assert "| forward | 0.002 | 0.002 | 1 | zero | model's | 37 |" in text and "| nominal | 0 | 37 |" in text
+
+
+def test_fd_schemes_keeps_the_schemes_asked_for_and_counts_adaptive_second_sides():
+    """``schemes`` keeps only those rows (the control-step rows belong to the default scheme); an
+    ``adaptive`` row's worlds per env are its 1 + P worlds plus the -eps worlds it added in contact."""
+    pytest.importorskip("mujoco_warp")
+    from harness.fd_schemes import GRID, fd_schemes
+
+    report = fd_schemes(
+        "ant",
+        num_envs=2,
+        contact_states=4,
+        timing_envs=0,
+        settle=10,
+        grid=GRID,
+        schemes=("adaptive",),
+        progress=lambda _: None,
+    )
+    rows = report["rows"]
+    assert {r["fd_scheme"] for r in rows} == {"adaptive"} and len(rows) == 3
+    assert all(37 <= r["worlds_per_env"] < 73 for r in rows)
+    assert report["schemes"] == ["adaptive"]

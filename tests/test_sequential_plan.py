@@ -185,3 +185,43 @@ def test_the_protocol_keeps_every_committed_run_at_its_address(tmp_path):
     planned = {j.run_dir.name for j in plan(data, tmp_path, stream=io.StringIO()) if j.kind == "train"}
     folders = {d.name for d in committed.iterdir() if (d / "job.json").is_file()}
     assert folders and folders <= planned, sorted(folders - planned)
+
+
+def test_analyses_of_final_policies_skip_runs_whose_policy_was_not_kept(tmp_path):
+    """[[landscape]] and [[step_gain]] plan one job per selected run, after its training; a finished run
+    without its final checkpoint is named once and skipped; an ablation's runs are selected only by a block
+    naming their hyperparameters."""
+    ablation = BLOCK.replace("seeds = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9]", "seeds = [0, 1]")
+    analyses = (
+        '\n[[landscape]]\ntask = "ant"\nbackend = "newton"\nalgos = ["shac", "shac-tdfixed"]\ngrid = 8\n'
+        '\n[[step_gain]]\ntask = "ant"\nbackend = "newton"\nalgos = ["shac-tdfixed"]\nstates = 16\n'
+        '\n[[step_gain]]\ntask = "ant"\nbackend = "newton"\nalgos = ["shac"]\nseeds = [1]\n'
+        "hyperparameters = { actor_lr = 1e-3 }\n"
+    )
+    text = SPEC.format(extra="") + ablation.format(extra="hyperparameters = { actor_lr = 1e-3 }") + analyses
+    data, store = _spec(tmp_path, text=text), tmp_path / "store"
+    (first,) = [
+        j.run
+        for j in plan(data, store, stream=io.StringIO())
+        if j.kind == "train" and (j.run.algo, j.run.seed) == ("shac", 0) and not j.run.hyperparameters
+    ]
+    lost = _evaluated(first, store, 1000.0)  # finished, its checkpoint not kept
+    said = io.StringIO()
+    jobs = plan(data, store, stream=said)
+    ablated = {j.run_dir for j in jobs if j.kind == "train" and j.run.hyperparameters}
+    landscapes = [j.output.parent for j in jobs if j.kind == "landscape"]
+    gains = {j.output.parent: j for j in jobs if j.kind == "step_gain"}
+    # the own block's 20 runs less the one whose policy is lost; none of the ablation's
+    assert len(landscapes) == 19 and not set(landscapes) & (ablated | {lost})
+    assert "[[landscape]] #1: skips 1 finished runs whose final policy was not kept: shac s0" in said.getvalue()
+    own = [j for run_dir, j in gains.items() if run_dir not in ablated]
+    assert len(own) == 10 and all(j.expect == {"states": 16, "stride": 8, "num_envs": 4} for j in own)
+    (theirs,) = [j for run_dir, j in gains.items() if run_dir in ablated]
+    assert theirs.expect == {"states": 256, "stride": 8, "num_envs": 4} and "_s1_" in theirs.output.parent.name
+    # a lost policy analysed before it was lost keeps its analysis job (done), and is not named as skipped
+    (lost / "landscape.json").write_text("{}")
+    said = io.StringIO()
+    jobs = plan(data, store, stream=said)
+    assert lost in {j.output.parent for j in jobs if j.kind == "landscape"}
+    assert "[[landscape]] #1: skips" not in said.getvalue()
+    assert all(j.after == [run_dir.name] and j.output.name == "step_gain.json" for run_dir, j in gains.items())

@@ -64,7 +64,15 @@ Gradients (:meth:`MujocoWarpSim.fd_jacobians`, :class:`_MujocoWarpStep`):
   ``forward``, ``(f(x + eps e_i) - f(x)) / eps`` from the nominal world, 1 + P worlds per env (37,
   49). ``one_sided`` is the default because it is the most accurate in contact and, unlike forward
   differences, keeps training's actor gradients near Newton's exact ones at twice forward's cost
-  (docs/mujoco-warp.md has the measurements).
+  (docs/mujoco-warp.md has the measurements). ``adaptive`` makes ``one_sided``'s choice of side
+  from the constraint sets instead of the quotients, and pays for the second side only where it is
+  needed: forward's 1 + P worlds, each recording at every substep which constraints it used
+  (:mod:`backends.mujoco_warp.switches`); the forward quotient where the +eps world kept the
+  nominal's constraint set at every substep, and for each (env, coordinate) where it did not (a
+  contact made or broken, friction starting or stopping to slide inside the stencil), a -eps world
+  in a second batch: its backward quotient where that world kept the set, else the smaller of the
+  two. Exact in the limit wherever the step is differentiable; off the switches it is forward
+  differences (first order), so its smooth-region error is forward's, not central's.
 * Steps, one per kind of coordinate: ``fd_eps_state`` (positions, metres and radians),
   ``fd_eps_velocity`` (velocities) and ``fd_eps_control`` (torques in N m, or PD targets in rad).
   Their defaults were chosen where training runs, in contact, against float64 MuJoCo C at the same
@@ -101,6 +109,7 @@ from backends.contract import BackendError, BatchedSim, inert_by_definition
 from backends.mujoco_warp.penalty import IMPEDANCE, apply_penalty_constants
 from backends.mujoco_warp.soft import SoftEnvModels
 from backends.mujoco_warp.stepping import SubstepReplay, run_substeps
+from backends.mujoco_warp.switches import ConstraintSignature
 from simcore import (
     ControlKind,
     SimState,
@@ -114,9 +123,9 @@ from simcore import (
     xyzw_to_wxyz,
 )
 
-FD_SCHEMES = ("central", "forward", "one_sided")  # finite-difference schemes of the ``fd_scheme`` option
+FD_SCHEMES = ("central", "forward", "one_sided", "adaptive")  # schemes of the ``fd_scheme`` option
 #: each scheme's default position step (articulated tasks; module docstring, "Steps")
-FD_EPS_STATE = {"central": 5e-4, "forward": 2.5e-4, "one_sided": 5e-4}
+FD_EPS_STATE = {"central": 5e-4, "forward": 2.5e-4, "one_sided": 5e-4, "adaptive": 2.5e-4}
 #: ``one_sided``: a coordinate whose forward and backward quotients differ by more than this fraction of
 #: the larger has a switch (a contact made or broken) inside its stencil
 SWITCH_DISAGREEMENT = 0.5
@@ -198,6 +207,8 @@ def fd_settings(task, options: dict) -> dict:
     scheme = str(options.get("fd_scheme", "central" if soft else "one_sided"))
     if scheme not in FD_SCHEMES:
         raise ValueError(f"fd_scheme must be one of {', '.join(FD_SCHEMES)}, got {scheme!r}")
+    if soft and scheme == "adaptive":
+        raise ValueError("fd_scheme adaptive reads the constraint rows of articulated models; soft bodies take central")
     if soft:  # not measured against a reference for soft bodies: kept central
         settings = {
             "fd_scheme": scheme,
@@ -293,7 +304,10 @@ class MujocoWarpSim(BatchedSim):
         with wp.ScopedDevice(self.wp_device):
             self.model = mjw.put_model(self.mjm)
         self._data: dict[int, tuple[mjw.Data, dict[str, torch.Tensor]]] = {}
+        self._signatures: dict[int, ConstraintSignature] = {}
         self._fd_models: dict[int, mjw.Model] = {}
+        self.second_side_share: float | None = None  # adaptive: the last step's share of -eps worlds
+        self._second_sizes: list[int] = []  # adaptive: the second batches' sizes held, latest last
 
         # the step of every tangent coordinate: nv positions, nv velocities, then the controls
         eps = [self.fd_eps_state] * layout.nv + [self.fd_eps_velocity] * layout.nv
@@ -372,15 +386,17 @@ class MujocoWarpSim(BatchedSim):
     @property
     def worlds_per_env_with_grad(self) -> int:
         """Worlds one env costs in a step with grad: the nominal world plus one (forward differences)
-        or two (central) per tangent coordinate."""
+        or two (central) per tangent coordinate; ``adaptive`` adds one -eps world per coordinate whose
+        stencil holds a switch (``second_side_share`` of them in the last step), at most 1 + 2P."""
         return self._fd_deltas().shape[0]
 
     def _fd_deltas(self) -> torch.Tensor:
         """(K, P) tangent perturbations, one per world: row 0 nominal, then +eps e_i (P rows), then
-        for central differences -eps e_i (P rows)."""
+        for central differences -eps e_i (P rows). ``adaptive`` steps the -eps worlds in a second
+        batch, only where needed (:meth:`_adaptive_jacobians`)."""
         steps = self._fd_steps
         rows = [steps.new_zeros(1, steps.numel()), torch.diag(steps)]
-        if self.fd_scheme != "forward":
+        if self.fd_scheme not in ("forward", "adaptive"):
             rows.append(-torch.diag(steps))
         return torch.cat(rows)
 
@@ -433,14 +449,20 @@ class MujocoWarpSim(BatchedSim):
         return self._fd_models[worlds]
 
     def _run_worlds(
-        self, qpos: torch.Tensor, qvel: torch.Tensor, torque: torch.Tensor, blocks: int = 1
+        self,
+        qpos: torch.Tensor,
+        qvel: torch.Tensor,
+        torque: torch.Tensor,
+        blocks: int = 1,
+        signatures: list[torch.Tensor] | None = None,
     ) -> torch.Tensor:
         """One control step of ``W`` independent worlds: (W, nq), (W, nv), (W, J) -> next engine (W, D).
 
         ``torque`` is the joint torque, or for position control the PD target the torque is computed
         from at every substep (``PhysicsSpec.pd_torque``, applied as ``qfrc_applied``). ``blocks`` > 1:
         a finite-difference batch, ``blocks`` perturbations of W / blocks envs, the nominal first,
-        solved with the options ``fd_warmstart`` and ``fd_tolerance``."""
+        solved with the options ``fd_warmstart`` and ``fd_tolerance``. ``signatures``: a list that
+        receives each substep's (W, 2) constraint signatures (:mod:`backends.mujoco_warp.switches`)."""
         worlds = qpos.shape[0]
         data, view = self._data_for(worlds)
         root = self.layout.nv - self.layout.num_dofs
@@ -466,8 +488,18 @@ class MujocoWarpSim(BatchedSim):
                 view["qfrc_applied"][:, root:] = phys.pd_torque(torque, hinges, view["qvel"][:, root:])
 
         hook = before_substep if (self.position_control or carry) else None
+        record = None
+        if signatures is not None:
+            if worlds not in self._signatures:
+                self._signatures[worlds] = ConstraintSignature(data, self.mjm.ngeom)
+            signature = self._signatures[worlds]
+
+            def record() -> None:
+                signatures.append(signature())
+
         model = self._fd_model(blocks, envs) if blocks > 1 else self.model
-        return run_substeps(model, data, view, phys.substeps, self.stepper, hook, (self.nconmax, self.njmax))
+        buffers = (self.nconmax, self.njmax)
+        return run_substeps(model, data, view, phys.substeps, self.stepper, hook, buffers, record)
 
     def _split(self, engine: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return engine[:, : self.layout.nq], engine[:, self.layout.nq :]
@@ -638,6 +670,11 @@ class MujocoWarpSim(BatchedSim):
         for start in range(0, engine.shape[0], self.fd_chunk_envs):
             e = engine[start : start + self.fd_chunk_envs]
             u = control[start : start + self.fd_chunk_envs]
+            if self.fd_scheme == "adaptive":
+                y0, quotients = self._adaptive_jacobians(e, u)
+                outputs.append(y0.float())
+                jac.append(quotients.permute(1, 2, 0))
+                continue
             qpos, qvel, torque = self._retract(e, u, deltas)  # (K * n, .) worlds, perturbation-major
             y = self._run_worlds(qpos.float(), qvel.float(), torque.float(), blocks=deltas.shape[0]).double()
             y = y.reshape(deltas.shape[0], e.shape[0], -1)
@@ -647,15 +684,76 @@ class MujocoWarpSim(BatchedSim):
         nt = 2 * self.layout.nv
         return torch.cat(outputs), jac[:, :, :nt].contiguous(), jac[:, :, nt:].contiguous()
 
+    def _adaptive_jacobians(self, engine: torch.Tensor, control: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """``adaptive``: the nominal and +eps worlds of every coordinate in one batch, recording each
+        substep's constraint set; forward quotients wherever a +eps world kept the nominal's set at every
+        substep. Where it did not (a switch inside the forward stencil), the -eps world of that env and
+        coordinate runs in a second batch: its backward quotient where it kept the nominal's set, else
+        the smaller of the two quotients (``one_sided``'s choice). Returns the nominal next state (n, D)
+        and the quotients (P, n, D), float64."""
+        deltas = self._fd_deltas()  # nominal, then +eps e_i
+        blocks, n, steps = deltas.shape[0], engine.shape[0], self._fd_steps
+        qpos, qvel, torque = self._retract(engine, control, deltas)
+        marks: list[torch.Tensor] = []
+        y = self._run_worlds(qpos.float(), qvel.float(), torque.float(), blocks=blocks, signatures=marks).double()
+        y = y.reshape(blocks, n, -1)
+        marks_nominal = torch.stack(marks).reshape(len(marks), blocks, n, 2)  # (substeps, K, n, 2)
+        switched = (marks_nominal[:, 1:] != marks_nominal[:, :1]).any(dim=-1).any(dim=0)  # (P, n)
+        ahead = (y[1:] - y[:1]) / steps[:, None, None]
+        coord, env = switched.nonzero(as_tuple=True)
+        self.second_side_share = float(coord.numel()) / float(switched.numel())
+        if not coord.numel():
+            return y[0], ahead
+        minus, kept = self._second_side(engine, control, coord, env, marks_nominal[:, 0])
+        behind = (y[0, env] - minus) / steps[coord, None]
+        forward = ahead[coord, env]
+        smaller = torch.where(
+            (forward.norm(dim=-1) <= behind.norm(dim=-1))[:, None], forward, behind
+        )  # both sides switched: the smaller quotient, the side that crossed less
+        ahead[coord, env] = torch.where(kept[:, None], behind, smaller)
+        return y[0], ahead
+
+    def _second_side(self, engine, control, coord, env, nominal_marks):
+        """The -eps worlds of the (coordinate, env) pairs ``coord``, ``env`` in one batch, padded to a
+        bucket size so that few batch sizes (and captured graphs) exist: their next states (M, D) and
+        whether each kept the nominal world's constraint set at every substep (M,)."""
+        steps, count = self._fd_steps, coord.numel()
+        size = _bucket(count)
+        self._hold_second_size(size, keep=engine.shape[0] * (1 + steps.numel()))
+        pick = torch.cat((env, env.new_zeros(size - count)))  # padding: copies of env 0, ignored
+        deltas = torch.zeros(size, steps.numel(), dtype=steps.dtype, device=steps.device)
+        deltas[torch.arange(count), coord] = -steps[coord]
+        qpos, qvel, torque = self._retract(engine[pick], control[pick], deltas[None])
+        marks: list[torch.Tensor] = []
+        y = self._run_worlds(qpos.float(), qvel.float(), torque.float(), signatures=marks).double()[:count]
+        own = torch.stack(marks)[:, :count]  # (substeps, M, 2)
+        kept = (own == nominal_marks[:, env]).all(dim=-1).all(dim=0)
+        return y, kept
+
+    def _hold_second_size(self, size: int, keep: int, most: int = 4) -> None:
+        """Keep the ``Data`` of the ``most`` second-batch sizes used last; free the others (each size a
+        training run meets would otherwise stay allocated), never the first batch's (``keep`` worlds)
+        or a forward step's."""
+        if size in self._second_sizes:
+            self._second_sizes.remove(size)
+        self._second_sizes.append(size)
+        while len(self._second_sizes) > most:
+            old = self._second_sizes.pop(0)
+            if old in (keep, self.num_envs) or old not in self._data:
+                continue
+            self.stepper.forget(self._data.pop(old)[0])
+            self._signatures.pop(old, None)
+
     def _retract(self, engine: torch.Tensor, control: torch.Tensor, deltas: torch.Tensor):
-        """Inputs of ``K x n`` worlds: every env's state and torque moved by each tangent vector in ``deltas`` (K, P).
+        """Inputs of ``K x n`` worlds: every env's state and torque moved by each tangent vector in ``deltas``:
+        (K, P), the same K vectors for every env, or (K, n, P), one set per env.
 
         Positions, hinges, velocities and torques move additively; the root quaternion by a
         body-frame rotation, ``q * exp(delta_rot / 2)``.
         """
         layout = self.layout
         qpos, qvel = self._split(engine)
-        d = deltas[:, None, :]  # (K, 1, P) against (1, n, .) nominal
+        d = deltas if deltas.dim() == 3 else deltas[:, None, :]  # (K, 1 or n, P) against (1, n, .) nominal
         nv = layout.nv
         vel = qvel[None] + d[..., nv : 2 * nv]
         torque = control[None] + d[..., 2 * nv :]
@@ -743,6 +841,15 @@ def generalized_to_engine(joint_q: torch.Tensor, joint_qd: torch.Tensor, com_off
     qpos = torch.cat((joint_q[:, 0:3], xyzw_to_wxyz(quat), joint_q[:, _ROOT_Q:]), dim=1)
     qvel = torch.cat((lin_origin, ang_body, joint_qd[:, _ROOT_V:]), dim=1)
     return torch.cat((qpos, qvel), dim=1)
+
+
+def _bucket(count: int) -> int:
+    """The batch size that holds ``count`` worlds: the next of 8, 12, 16, 24, 32, 48, ... (2^k and
+    1.5 x 2^k), so the padding is under a third and a training run meets a few dozen sizes at most."""
+    size = 8
+    while size < count:
+        size = size * 3 // 2 if size & (size - 1) == 0 else size * 4 // 3
+    return size
 
 
 class _MujocoWarpStep(torch.autograd.Function):

@@ -35,6 +35,12 @@ class SubstepReplay:
         self.enabled, self.wp_device = enabled, wp_device
         self._entries: dict[int, SubstepReplay._Entry] = {}  # by id(data)
 
+    def forget(self, data: mjw.Data) -> None:
+        """Drop ``data``'s captured graph (and the entry's hold on ``data``), e.g. before freeing it."""
+        entry = self._entries.get(id(data))
+        if entry is not None and entry.data is data:
+            del self._entries[id(data)]
+
     def step(self, model: mjw.Model, data: mjw.Data) -> None:
         if not self.enabled:
             mjw.step(model, data)
@@ -61,11 +67,13 @@ def run_substeps(
     stepper: SubstepReplay,
     before_substep: Callable[[], None] | None,
     buffers: tuple[int, int],
+    after_substep: Callable[[], None] | None = None,
 ) -> torch.Tensor:
     """``substeps`` ``mujoco_warp.step`` calls on ``data`` (its inputs already in ``view``), calling
-    ``before_substep`` (which may read ``view`` and write ``qfrc_applied``) before each; returns the
-    next engine rows ``[qpos, qvel]``. A contact or constraint overflow (``buffers`` = (nconmax,
-    njmax)) raises instead of returning a state MuJoCo-Warp computed with contacts dropped."""
+    ``before_substep`` (which may read ``view`` and write ``qfrc_applied``) before each and
+    ``after_substep`` (which may read ``data``'s constraint rows) after each; returns the next engine
+    rows ``[qpos, qvel]``. A contact or constraint overflow (``buffers`` = (nconmax, njmax)) raises
+    instead of returning a state MuJoCo-Warp computed with contacts dropped."""
     from backends.contract import BackendError
 
     wp_device = stepper.wp_device
@@ -75,6 +83,9 @@ def run_substeps(
                 wp.synchronize_device(wp_device)  # the hook reads this substep's state through torch
                 before_substep()
             stepper.step(model, data)
+            if after_substep is not None:
+                wp.synchronize_device(wp_device)
+                after_substep()
         wp.synchronize_device(wp_device)
     if bool(view["overflow"].any()):
         nconmax, njmax = buffers

@@ -46,6 +46,7 @@ from harness.cli.runs import (
     cmd_list,
     cmd_render,
     cmd_report,
+    cmd_step_gain,
     cmd_sweep,
     cmd_train,
 )
@@ -73,6 +74,7 @@ VERBS = {
     "bench": cmd_bench,
     "bench-run": cmd_bench_run,
     "landscape": cmd_landscape,
+    "step-gain": cmd_step_gain,
     "render": cmd_render,
 }
 

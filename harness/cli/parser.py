@@ -12,7 +12,17 @@ import typing
 
 from algorithms.config import ALGORITHMS
 from harness.cli.inputs import BadInput
-from harness.spec_schema import INT_MAX, MAX_ENVS, MAX_EPOCHS, MAX_EVAL_SEEDS, MAX_GRID, MAX_HORIZON, MAX_STEPS
+from harness.spec_schema import (
+    INT_MAX,
+    MAX_ENVS,
+    MAX_EPOCHS,
+    MAX_EVAL_SEEDS,
+    MAX_GRID,
+    MAX_HORIZON,
+    MAX_STEP_GAIN_STATES,
+    MAX_STEPS,
+    MAX_STRIDE,
+)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -172,6 +182,7 @@ VERB_DEFAULTS: dict[str, dict] = {
     "crosscheck": {"num_envs": 4},
     "parity": {"num_envs": 64, "steps": 100, "max_steps": 300, "backends": ["newton", "mujoco_warp"]},
     "contact-jacobians": {"num_envs": 8},
+    "step-gain": {"num_envs": 64},
     "throughput": {"num_envs": 64, "horizon": 32, "windows": 5},
     "sweep": {"num_envs": 64, "horizon": 32},
     "grad-growth": {"windows": 3},
@@ -237,6 +248,7 @@ VERB_HELP: dict[str, dict[str, str]] = {
     },
     "scaling-plot": {"out": "the plot to write (.png)"},
     "landscape": {"num_envs": "envs of the window whose losses are mapped"},
+    "step-gain": {"num_envs": "envs of the policy's rollout (one batch of Jacobians)"},
     "render": {
         "run": "run directory written by `train` (its checkpoint.pt is the policy shown)",
         "backend": "the engine to show it on (default: the one it trained on)",
@@ -471,6 +483,13 @@ def build_parser() -> argparse.ArgumentParser:
         default=30,
         help="zero-action steps before the states in contact are sampled (default: %(default)s)",
     )
+    p.add_argument(
+        "--schemes",
+        nargs="+",
+        metavar="SCHEME",
+        help="compare only the grid's rows of these schemes (central, forward, one_sided, adaptive; the "
+        "control-step rows come with the default scheme, one_sided) (default: every row)",
+    )
 
     p = sub.add_parser("scaling", help="forward and forward+backward env-steps/s over num_envs: CSV and log-log plot")
     names = ("backend", "task", "horizon", "device", "seed", "windows", "out", "backend_option")
@@ -525,6 +544,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--grid", type=_int_in(2, MAX_GRID), default=40, help="points per axis (default: %(default)s)")
     p.add_argument("--span", type=_positive_float, default=1.0, help="each axis spans [-span, span] (default: 1)")
     p.add_argument("--warmup-steps", type=_nonnegative_int, default=0, help="policy steps before the window")
+
+    p = sub.add_parser(
+        "step-gain",
+        help="Proposition 1's B_f: the one-step Jacobian's gain at states a run's final policy visits",
+    )
+    _add(p, "step-gain", "run", "num_envs", "seed", required=("run",))
+    p.add_argument("--states", type=_int_in(1, MAX_STEP_GAIN_STATES), default=256, help="states measured (default 256)")
+    p.add_argument("--stride", type=_int_in(1, MAX_STRIDE), default=8, help="control steps between an env's states")
 
     p = sub.add_parser("render", help="a video and a filmstrip of a run's final policy (headless)")
     _add(p, "render", "run", "backend", "max_steps", required=("run",))

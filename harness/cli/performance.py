@@ -124,6 +124,11 @@ def cmd_fd_schemes(args) -> int:
 
     if task_class(args.task).layout.num_particles:
         raise BadInput("fd-schemes compares schemes on articulated tasks (ant, go2); soft bodies have no C reference")
+    from backends.mujoco_warp.adapter import FD_SCHEMES
+
+    unknown = sorted(set(args.schemes or ()) - set(FD_SCHEMES))
+    if unknown:
+        raise BadInput(f"--schemes: unknown scheme {unknown[0]!r}; choose from {', '.join(FD_SCHEMES)}")
     prefix = out_stem(args.out) if args.out else None  # PREFIX or PREFIX.json: both files
     if prefix:
         _check_output_file(prefix + ".json")
@@ -139,6 +144,7 @@ def cmd_fd_schemes(args) -> int:
         seed=args.seed,
         settle=args.settle,
         contact_states=args.contact_states,
+        schemes=tuple(args.schemes) if args.schemes else None,
     )
     if prefix:  # the JSON last: a suite counts the check done when it exists
         print(f"wrote {atomic_write_text(prefix + '.md', markdown(report, harness_command()))}")

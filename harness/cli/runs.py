@@ -221,3 +221,23 @@ def cmd_landscape(args) -> int:
     r = result["roughness"]
     print(f"roughness: h-step {r['h_step']:.3f}, TD-lambda {r['td_lambda']:.3f}")
     return 0
+
+
+def cmd_step_gain(args) -> int:
+    from pathlib import Path
+
+    from harness.run_folder import read_config
+    from harness.step_gain import compute_step_gain, write_step_gain
+
+    config = read_config(Path(args.run))
+    # one window of the run's h steps with its graph kept, every env
+    _check_memory(config["backend"], config["task"], args.num_envs, config["algo_config"].horizon, config["device"])
+    result = compute_step_gain(args.run, states=args.states, num_envs=args.num_envs, stride=args.stride, seed=args.seed)
+    print(f"wrote {write_step_gain(args.run, result)}")
+    gain, growth = result["summary"]["state_gain"], result["window"]["per_step_growth"]
+    print(
+        f"one-step state gain: median {gain['median']:.3g}, p95 {gain['p95']:.3g} "
+        f"(bound 1/(gamma lambda) = {result['paper_bound']:.4f}); "
+        f"growth per step over a window of {result['window']['steps']}: median {growth['median']:.3g}"
+    )
+    return 0

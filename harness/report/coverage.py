@@ -12,6 +12,9 @@ seed 4 did), and lognormal (right-skewed). Procedures:
 - ``poi_percentile``: rliable's probability of improvement with its percentile bootstrap interval,
   unpaired, as the returns table showed it (truth: P(X > Y) of the two distributions);
 - ``iqm_percentile``: the IQM's percentile bootstrap interval over seeds (truth: the distribution's IQM).
+- ``log_ratio_t``: the free claims' interval (Fig. 2's gradient-variance levels, Fig. 3's roughness): the
+  one-sample t interval of the paired log-ratios, exponentiated (truth: exp E[log variant - log base]);
+  on the scenarios whose outcomes are positive (lognormal, the failed-seed mixture).
 
 ``python -m harness.report.coverage OUT_DIR [REPS]`` writes the table as ``coverage.md`` and ``.csv`` with
 provenance; tests/test_coverage.py asserts the claims' procedures within tolerance of nominal and that the
@@ -127,6 +130,37 @@ def iqm_covers(values: np.ndarray, truth: float) -> bool:
     return bool(low <= truth <= high)
 
 
+def log_ratio_covers(variant: np.ndarray, base: np.ndarray, truth: float, confidence: float = 0.95) -> bool:
+    """Whether the t interval of the mean paired log-ratio holds the true one (``truth``, a log)."""
+    logs = np.log(variant) - np.log(base)
+    margin = float(stats.t.ppf(0.5 + confidence / 2.0, logs.size - 1)) * float(logs.std(ddof=1)) / math.sqrt(logs.size)
+    return bool(abs(float(logs.mean()) - truth) <= margin)
+
+
+def true_log_ratio(scenario: Scenario) -> float:
+    """E[log variant - log base] of the scenario, by a large draw."""
+    variant, base = scenario.draw(np.random.default_rng(54321), 1, 400_000)
+    return float(np.mean(np.log(variant[0])) - np.mean(np.log(base[0])))
+
+
+def rough_outliers(effect: float, share: float = 0.2, jump: float = 1.5, sigma: float = 0.5) -> Scenario:
+    """Lognormal outcomes whose log-ratio is right-skewed: in a ``share`` of pairs the variant's outcome is
+    ``exp(jump)`` times larger (one policy whose surface is far rougher than the rest), else scaled by
+    1 + effect. Only the log-ratio interval reads it (``ratio`` and ``poi`` are not used)."""
+
+    def draw(rng, reps, n):
+        base = BASE_MEAN * rng.lognormal(0.0, sigma, (reps, n))
+        shift = np.where(rng.random((reps, n)) < share, jump, 0.0)
+        return (1.0 + effect) * base * np.exp(shift) * rng.lognormal(0.0, sigma, (reps, n)), base
+
+    return Scenario(f"lognormal, a fifth of the log-ratios +{jump}, effect {effect:+.0%}", draw, math.nan, math.nan)
+
+
+def log_scenarios() -> list[Scenario]:
+    """The log-ratio interval's scenarios (positive outcomes): lognormal and right-skewed log-ratios."""
+    return [make(effect) for effect in (0.0, 0.5) for make in (lognormal, rough_outliers)]
+
+
 def true_iqm(scenario: Scenario) -> float:
     """The base distribution's interquartile mean, by a large draw."""
     _, base = scenario.draw(np.random.default_rng(54321), 1, 400_000)
@@ -145,6 +179,9 @@ def coverage(scenario: Scenario, procedure: str, n: int, reps: int, seed: int = 
     elif procedure == "iqm_percentile":
         truth = true_iqm(scenario)
         hits = [iqm_covers(b[:n], truth) for b in base]
+    elif procedure == "log_ratio_t":
+        truth = true_log_ratio(scenario)
+        hits = [log_ratio_covers(v[:n], b[:n], truth) for v, b in zip(variant, base, strict=True)]
     else:
         raise ValueError(f"unknown procedure {procedure!r}")
     return float(np.mean(hits))
@@ -154,28 +191,26 @@ def coverage_table(reps: int = 2000) -> pd.DataFrame:
     """Every procedure's coverage under every scenario at the seed counts the reports use (the sequential
     design's at its own looks), with the Monte-Carlo standard error of each share."""
     rows = []
-    for scenario in scenarios():
-        for procedure, counts, nominal in (
-            ("paired_fieller", LOOKS, 0.95),
-            ("sequential", (LOOKS[-1],), 1.0 - sum(LOOK_ALPHAS)),
-            ("poi_percentile", LOOKS, 0.95),
-            ("iqm_percentile", LOOKS, 0.95),
-        ):
-            if procedure == "iqm_percentile" and scenario.ratio != 1.0:
-                continue  # the IQM's interval reads one side: the no-effect scenarios cover it
-            for n in counts:
-                share = coverage(scenario, procedure, n, reps)
-                rows.append(
-                    {
-                        "scenario": scenario.name,
-                        "procedure": procedure,
-                        "seeds": n,
-                        "nominal": nominal,
-                        "coverage": share,
-                        "mc_se": math.sqrt(share * (1.0 - share) / reps),
-                        "reps": reps,
-                    }
-                )
+    plan = [(scenario, "paired_fieller", LOOKS, 0.95) for scenario in scenarios()]
+    plan += [(scenario, "sequential", (LOOKS[-1],), 1.0 - sum(LOOK_ALPHAS)) for scenario in scenarios()]
+    plan += [(scenario, "poi_percentile", LOOKS, 0.95) for scenario in scenarios()]
+    # the IQM's interval reads one side: the no-effect scenarios cover it
+    plan += [(scenario, "iqm_percentile", LOOKS, 0.95) for scenario in scenarios() if scenario.ratio == 1.0]
+    plan += [(scenario, "log_ratio_t", (3, *LOOKS), 0.95) for scenario in log_scenarios()]
+    for scenario, procedure, counts, nominal in plan:
+        for n in counts:
+            share = coverage(scenario, procedure, n, reps)
+            rows.append(
+                {
+                    "scenario": scenario.name,
+                    "procedure": procedure,
+                    "seeds": n,
+                    "nominal": nominal,
+                    "coverage": share,
+                    "mc_se": math.sqrt(share * (1.0 - share) / reps),
+                    "reps": reps,
+                }
+            )
     return pd.DataFrame(rows)
 
 

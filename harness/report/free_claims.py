@@ -1,8 +1,10 @@
-"""Two claims of the paper that the runs already made can judge at no further cost: that the TD-lambda
-return lowers the actor gradient's variance (ARE, Sec. V-A, Fig. 2) and what the learned lambda's fall
-(Sec. V-B, Fig. 4b) says once the optimiser's own speed limit is taken into account (Sec. IV-B,
-Algorithm 1). Both are pure functions of :class:`harness.report.records.RunRecord` lists that return
-tables in the conventions of :mod:`harness.report.claims` (setting columns, a verdict, a source).
+"""Four claims of the paper that the runs already made can judge at little or no further cost: that the
+TD-lambda return lowers the actor gradient's variance (ARE, Sec. V-A, Fig. 2), what the learned
+lambda's fall (Sec. V-B, Fig. 4b) says once the optimiser's own speed limit is taken into account
+(Sec. IV-B, Algorithm 1), that the TD-lambda loss is smoother around a trained policy (Fig. 3), and
+whether lambda 0.95 meets Proposition 1's bound on the states trained policies visit. All are pure
+functions of :class:`harness.report.records.RunRecord` lists that return tables in the conventions of
+:mod:`harness.report.claims` (setting columns, a verdict, a source).
 
 **Gradient variance (Fig. 2).** The paper plots the actor-gradient variance over training, smoothed by
 an exponential moving average, and reads SHAC's near 1e4 and SHAC-TDFixed's and SHAC-TDAdpt's between
@@ -20,6 +22,12 @@ size set by the learning rate, not by the gradient, so a gradient whose sign nev
 a fixed pace whatever the data say about how far lambda should go. :func:`lambda_rate_table` measures
 how much of that pace each run used, which tells whether the fall of Fig. 4b is the optimiser's speed
 (the data set only its direction) or slower (the data set its pace too).
+
+**Smoothness (Fig. 3)** and **the bound (Proposition 1)** read what two analyses of a final policy wrote
+into its run folder: the loss landscape (``landscape.json``, :mod:`harness.landscape`) and the one-step
+Jacobian gains along the policy (``step_gain.json``, :mod:`harness.step_gain`);
+:func:`landscape_claim_table` and :func:`step_gain_claim_table` apply the readings docs/statistics.md
+fixed for them.
 """
 
 from __future__ import annotations
@@ -422,3 +430,106 @@ def judged_curves(runs: list[RunRecord], statistic: str = "actor_grad_var") -> p
     judged = {tuple(row) for row in claims.loc[claims["pairs"] >= 2, setting].itertuples(index=False)}
     keep = [r for r in runs if (r.task, r.backend, r.num_envs, r.planned_epochs, r.horizon) in judged]
     return gradient_variance_curves(keep, statistic)
+
+
+# -- Fig. 3: the TD-lambda loss is smoother -----------------------------------------------------------
+def smoothness_verdict(low: float, high: float, policies: int, paper_protocol: bool) -> str:
+    """What the CI [low, high] of the h-step/TD-lambda roughness ratio says of Fig. 3's claim that the
+    TD-lambda loss is the smoother: confirmed above 1; below 1, contradicted at the paper's Ant protocol
+    and not confirmed at this budget elsewhere; undecided when it holds 1 or rests on under 2 policies."""
+    if policies < 2:
+        return f"{UNDECIDED} (under 2 policies)"
+    if low > 1.0:
+        return CONFIRMED
+    if high < 1.0:
+        return CONTRADICTED if paper_protocol else NOT_CONFIRMED
+    return UNDECIDED
+
+
+def landscape_claim_table(runs: list[RunRecord]) -> pd.DataFrame:
+    """Fig. 3's claim, one row per setting and landscape protocol (grid, span, envs): the final policies
+    with a landscape.json (``harness/landscape.py``), each its own pair, since both losses are mapped on
+    the same plane, start state and action noise. Estimand (docs/statistics.md, Fig. 3): the geometric
+    mean over policies of roughness(h-step) / roughness(TD-lambda); 95% CI: the one-sample t interval of
+    the log-ratios, exponentiated. A surface with non-finite points has no roughness: its policy is left
+    out and counted (``unmapped``). Verdict: :func:`smoothness_verdict`."""
+    groups: dict[tuple, list[RunRecord]] = {}
+    for run in runs:
+        land = run.landscape
+        if land is not None:
+            key = (run.task, run.backend, run.num_envs, run.planned_epochs, run.horizon)
+            groups.setdefault(key + (land.get("grid"), land.get("span"), land.get("num_envs")), []).append(run)
+    rows = []
+    for (task, backend, num_envs, planned, horizon, grid, span, envs), members in sorted(groups.items(), key=str):
+        rough = [(r.landscape.get("roughness") or {}) for r in members]
+        usable = [(x.get("h_step"), x.get("td_lambda")) for x in rough]
+        usable = [(h, t) for h, t in usable if h and t and math.isfinite(h) and math.isfinite(t)]
+        logs = np.array([math.log(h / t) for h, t in usable])
+        mean, low, high = _t_interval(logs)
+        protocol = at_paper_protocol(num_envs, planned, horizon)
+        rows.append(
+            _setting_columns(task, backend, num_envs, planned, horizon)
+            | {"grid": grid, "span": span, "landscape_envs": envs}
+            | {"algos": ", ".join(sorted({r.algo for r in members})), "policies": len(usable)}
+            | {"unmapped": len(members) - len(usable)}
+            | {"roughness_h_step": _geometric_mean([h for h, _ in usable])}
+            | {"roughness_td_lambda": _geometric_mean([t for _, t in usable])}
+            | {"ratio": math.exp(mean), "ratio_ci_low": math.exp(low), "ratio_ci_high": math.exp(high)}
+            | {"verdict": smoothness_verdict(math.exp(low), math.exp(high), len(usable), protocol)}
+            | {"source": "Fig. 3"}
+        )
+    return pd.DataFrame(rows, columns=LANDSCAPE_CLAIM_COLUMNS)
+
+
+def _geometric_mean(values: list[float]) -> float:
+    return float(np.exp(np.mean(np.log(values)))) if values else math.nan
+
+
+LANDSCAPE_CLAIM_COLUMNS = [
+    *("task", "backend", "num_envs", "epochs", "horizon", "grid", "span", "landscape_envs", "algos"),
+    *("policies", "unmapped", "roughness_h_step", "roughness_td_lambda", "ratio", "ratio_ci_low"),
+    *("ratio_ci_high", "verdict", "source"),
+]
+
+
+# -- Proposition 1: lambda < 1 / (gamma B_f) ----------------------------------------------------------
+BOUND_HOLDS = "holds: lambda 0.95 meets the bound"
+BOUND_FAILS = "fails: B_f above 1/(gamma lambda); the TD-lambda gradient's variance may still grow with h"
+
+
+def step_gain_claim_table(runs: list[RunRecord]) -> pd.DataFrame:
+    """Proposition 1, one row per setting: the one-step state gains (``harness/step_gain.py``) of every
+    final policy with a step_gain.json, pooled over its states. The pre-registered reading
+    (docs/statistics.md): the bound holds when the pooled gains' 95th percentile is below
+    1 / (gamma lambda) at the paper's lambda 0.95. Beside it, descriptive: the median gain, the
+    share of states above the bound, the range of the per-policy 95th percentiles, and the growth per
+    step over a window (``||d s_{t+h} / d s_t||^(1/h)``, the chain eq. 19 actually multiplies)."""
+    groups: dict[tuple, list[RunRecord]] = {}
+    for run in runs:
+        if run.step_gain is not None and run.step_gain.get("rows"):
+            key = (run.task, run.backend, run.num_envs, run.planned_epochs, run.horizon)
+            groups.setdefault(key, []).append(run)
+    rows = []
+    for (task, backend, num_envs, planned, horizon), members in sorted(groups.items(), key=str):
+        gains = np.array([row["state_gain"] for r in members for row in r.step_gain["rows"]])
+        bound = float(members[0].step_gain["paper_bound"])
+        per_policy = [float(np.quantile([x["state_gain"] for x in r.step_gain["rows"]], 0.95)) for r in members]
+        growth = [r.step_gain["window"]["per_step_growth"]["median"] for r in members if "window" in r.step_gain]
+        p95 = float(np.quantile(gains, 0.95))
+        rows.append(
+            _setting_columns(task, backend, num_envs, planned, horizon)
+            | {"algos": ", ".join(sorted({r.algo for r in members})), "policies": len(members)}
+            | {"states": int(gains.size), "bound": bound, "gain_median": float(np.median(gains))}
+            | {"gain_p95": p95, "gain_p95_min": min(per_policy), "gain_p95_max": max(per_policy)}
+            | {"share_above_bound": float(np.mean(gains > bound))}
+            | {"window_growth": float(np.median(growth)) if growth else math.nan}
+            | {"verdict": BOUND_HOLDS if p95 < bound else BOUND_FAILS, "source": "Proposition 1"}
+        )
+    return pd.DataFrame(rows, columns=STEP_GAIN_CLAIM_COLUMNS)
+
+
+STEP_GAIN_CLAIM_COLUMNS = [
+    *("task", "backend", "num_envs", "epochs", "horizon", "algos", "policies", "states", "bound"),
+    *("gain_median", "gain_p95", "gain_p95_min", "gain_p95_max", "share_above_bound", "window_growth"),
+    *("verdict", "source"),
+]

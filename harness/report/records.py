@@ -39,6 +39,7 @@ class RunRecord:
     evaluation: dict | None  # eval.json, None when missing (an unfinished run)
     cross_evaluations: dict[str, dict] = field(default_factory=dict)  # file name -> eval_on_*/sim2sim_on_* payload
     landscape: dict | None = None
+    step_gain: dict | None = None  # step_gain.json (Proposition 1's B_f along the final policy)
     commit: str | None = None  # the commit the run was trained at (config.json's provenance)
     planned_epochs: int | None = None  # config.json's epochs: what the run was asked for (``epochs``: what it did)
     device: str = "cpu"  # where the run trained (config.json's device: cpu, cuda[:N])
@@ -217,6 +218,7 @@ def load_run(run_dir: Path, stream=None) -> RunRecord | None:
                 payload.setdefault("trained_on", backend)
                 cross[path.name] = payload
     landscape = _read_json(run_dir / "landscape.json", stream)
+    step_gain = _read_json(run_dir / "step_gain.json", stream)
     return RunRecord(
         path=run_dir,
         task=task_label(task, config),
@@ -229,6 +231,7 @@ def load_run(run_dir: Path, stream=None) -> RunRecord | None:
         evaluation=evaluation,
         cross_evaluations=cross,
         landscape=landscape,
+        step_gain=step_gain,
         commit=(config.get("provenance") or {}).get("git_commit"),
         planned_epochs=_int_or_none(config.get("epochs", algo_cfg.get("max_epochs"))),
         device=str(config.get("device", "cpu")),

@@ -606,6 +606,34 @@ def landscape_table(runs: list[RunRecord]) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=columns)
 
 
+def step_gain_table(runs: list[RunRecord]) -> pd.DataFrame:
+    """Per run with a step_gain.json: its states, lambda and the summaries of its gains."""
+    rows = []
+    for run in sorted(runs, key=lambda r: (r.task, r.backend, rank(r.algo), r.horizon, r.seed)):
+        gain = run.step_gain
+        if gain is None or "summary" not in gain:
+            continue
+        summary, window = gain["summary"], gain.get("window") or {}
+        rows.append(
+            {
+                "run": run.path.name,
+                "task": run.task,
+                "backend": run.backend,
+                "algo": run.algo,
+                "horizon": run.horizon,
+                "seed": run.seed,
+                "states": gain.get("states"),
+                "lambda": gain.get("lambda"),
+                "gain_median": summary["state_gain"]["median"],
+                "gain_p95": summary["state_gain"]["p95"],
+                "action_gain_median": summary["action_gain"]["median"],
+                "window_growth": (window.get("per_step_growth") or {}).get("median"),
+            }
+        )
+    columns = ["run", "task", "backend", "algo", "horizon", "seed", "states", "lambda", "gain_median", "gain_p95"]
+    return pd.DataFrame(rows, columns=columns + ["action_gain_median", "window_growth"])
+
+
 def _pairs_summary(pairs: dict, fields: tuple[str, str]) -> tuple[float | None, float | None]:
     """(min of fields[0], max of fields[1]) over every comparison nested in ``pairs``."""
     cosines, diffs = [], []
