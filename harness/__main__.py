@@ -22,4 +22,12 @@ for _signum in (signal.SIGINT, signal.SIGTERM):
 
 from harness.cli import main  # noqa: E402  (after the handlers: imports take seconds)
 
-raise SystemExit(main())
+try:
+    _code = main()
+    sys.stdout.flush()
+except BrokenPipeError:
+    # the reader left (`python -m harness list | head`): end quietly, as a pipeline's writer does, with
+    # stdout pointed at /dev/null so that the interpreter's own final flush cannot fail again
+    os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    _code = 128 + signal.SIGPIPE
+raise SystemExit(_code)

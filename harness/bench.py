@@ -781,14 +781,12 @@ def plan(data: dict, store: Path, stream=None) -> list[Job]:
 
     from harness.run_folder import CHECKPOINT
 
-    def with_final_policy(sources: list[Job], where: str, output: str) -> list[Job]:
+    def with_final_policy(sources: list[Job], where: str, output_of) -> list[Job]:
         """``sources`` less the runs finished without their final checkpoint (a store whose checkpoints
-        were not kept) and without the analysis ``output`` made before: nothing can analyse their final
-        policy, so the block says so once and skips them."""
+        were not kept) and without the analysis made before (the file ``output_of(job)``): nothing can
+        analyse their final policy, so the block says so once and skips them."""
         lost = [
-            j
-            for j in sources
-            if j.is_done() and not (j.run_dir / CHECKPOINT).is_file() and not (j.run_dir / output).is_file()
+            j for j in sources if j.is_done() and not (j.run_dir / CHECKPOINT).is_file() and not output_of(j).is_file()
         ]
         if lost:
             names = ", ".join(f"{j.run.algo} s{j.run.seed}" for j in lost)
@@ -798,7 +796,7 @@ def plan(data: dict, store: Path, stream=None) -> list[Job]:
     out_stream = stream or sys.stdout
     for i, block in enumerate(data.get("landscape", [])):
         where = f"[[landscape]] #{i + 1}"
-        for source in with_final_policy(select(block, where, "backend"), where, "landscape.json"):
+        for source in with_final_policy(select(block, where, "backend"), where, lambda j: j.run_dir / "landscape.json"):
             grid, span = int(block.get("grid", 40)), float(block.get("span", 1.0))
             num_envs = int(block.get("num_envs", source.run.num_envs))
             out = source.run_dir / "landscape.json"
@@ -818,7 +816,7 @@ def plan(data: dict, store: Path, stream=None) -> list[Job]:
             )
     for i, block in enumerate(data.get("step_gain", [])):
         where = f"[[step_gain]] #{i + 1}"
-        for source in with_final_policy(select(block, where, "backend"), where, "step_gain.json"):
+        for source in with_final_policy(select(block, where, "backend"), where, lambda j: j.run_dir / "step_gain.json"):
             states, stride = int(block.get("states", 256)), int(block.get("stride", 8))
             num_envs = int(block.get("num_envs", source.run.num_envs))
             out = source.run_dir / "step_gain.json"
@@ -851,12 +849,16 @@ def plan(data: dict, store: Path, stream=None) -> list[Job]:
 
     for i, block in enumerate(data.get("render", [])):
         where = f"[[render]] #{i + 1}"
-        for source in with_final_policy(select(block, where, "backend"), where):
-            compare = bool(block.get("compare", False))
+        compare = bool(block.get("compare", False))
+
+        def video_of(job: Job, compare: bool = compare) -> Path:
+            shown = compared_backends(job.run.backend) if compare else [job.run.backend]
+            return record_stem(job.run_dir, shown).with_suffix(".json")
+
+        for source in with_final_policy(select(block, where, "backend"), where, video_of):
             max_steps, frames = int(block.get("max_steps", 300)), int(block.get("frames", 60))
             words = ["--max-steps", max_steps, "--frames", frames] + (["--compare"] if compare else [])
-            shown = compared_backends(source.run.backend) if compare else [source.run.backend]
-            out = record_stem(source.run_dir, shown).with_suffix(".json")
+            out = video_of(source)
             per_frame = (2.0 if source.run.task == "soft_jumper" else 0.5) * (2 if compare else 1)
             jobs.append(
                 Job(

@@ -35,6 +35,14 @@ class RunStopped(RuntimeError):
 
 
 def _git_commit() -> str | None:
+    """The commit this code is: recorded at build time in an installed package (``harness/_commit.txt``,
+    written by setup.py), else its checkout's HEAD; None when neither says."""
+    recorded = Path(__file__).resolve().parent / "_commit.txt"
+    try:
+        if recorded.is_file():
+            return recorded.read_text().strip() or None
+    except OSError:
+        pass
     try:
         out = subprocess.run(
             ["git", "rev-parse", "--short", "HEAD"],
@@ -46,6 +54,26 @@ def _git_commit() -> str | None:
         return out.stdout.strip() or None
     except (OSError, subprocess.SubprocessError):
         return None
+
+
+def _git_dirty(here: Path | None = None) -> bool | None:
+    """Whether the checkout this code runs from (or ``here``) has uncommitted changes to tracked files
+    (the result then comes from more than ``git_commit``); None for an installed build or outside a
+    checkout."""
+    here = here or Path(__file__).resolve().parent
+    if (here / "_commit.txt").is_file():
+        return None
+    try:
+        out = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=here,
+            capture_output=True,
+            text=True,
+            timeout=10,
+        )
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return bool(out.stdout.strip()) if out.returncode == 0 else None
 
 
 def _cpu_model() -> str:
@@ -116,6 +144,7 @@ def provenance(command: str | None = None) -> dict:
     return {
         "command": command or harness_command(),
         "git_commit": _git_commit(),
+        "git_dirty": _git_dirty(),
         "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "python": platform.python_version(),
         "machine": machine(),

@@ -28,6 +28,7 @@ MAX_ENVS = 65_536
 MAX_GRID = 400
 MAX_STEP_GAIN_STATES = 65_536
 MAX_STRIDE = 1000
+MAX_FD_CONTACT_STATES = 4096  # fd-schemes: each state costs every row a float64 reference (about a second)
 MAX_EPOCHS = 10**6
 MAX_HORIZON = 10_000
 MAX_EVAL_SEEDS = 1000

@@ -296,8 +296,9 @@ def test_adaptive_is_forward_differences_in_the_air_and_pays_the_second_side_onl
     the nominal's constraint sets, else the backward quotient where the -eps world kept them, else the
     smaller of the two: checked against quotients recomputed from central's worlds at the same steps."""
     adaptive = make("mujoco_warp", ant, num_envs=4, seed=0, fd_scheme="adaptive")
-    forward = make("mujoco_warp", ant, num_envs=4, seed=0, fd_scheme="forward")
-    central = make("mujoco_warp", ant, num_envs=4, seed=0, fd_scheme="central", fd_eps_state=2.5e-4)
+    steps = {"fd_eps_state": 2.5e-4, "fd_eps_velocity": 1e-2}  # adaptive's defaults
+    forward = make("mujoco_warp", ant, num_envs=4, seed=0, fd_scheme="forward", **steps)
+    central = make("mujoco_warp", ant, num_envs=4, seed=0, fd_scheme="central", **steps)
     gen = torch.Generator().manual_seed(4)
     q, qd = ant.sample_initial_state(4, gen)
     q[:, 2] = 2.0

@@ -72,6 +72,9 @@ def test_scaling_writes_csv_json_and_plot_and_skips_what_would_take_too_long(tmp
         (["scaling-plot", "--csv", "nowhere.csv", "--out", "x.png"], "no such scaling CSV"),
         (["fd-schemes", "--task", "soft_jumper"], "articulated tasks"),
         (["fd-schemes", "--task", "ant", "--schemes", "adaptive", "backward"], "unknown scheme 'backward'"),
+        (["fd-schemes", "--task", "ant", "--contact-states", "0"], "--contact-states"),
+        (["fd-schemes", "--task", "ant", "--contact-states", "1000000000"], "--contact-states"),
+        (["fd-schemes", "--task", "ant", "--contact-states", "12"], "not a multiple of --num-envs 8"),
         (["throughput", "--backend", "newton", "--task", "ant", "--backend-option", "fd_scheme"], "KEY=VALUE"),
         (["gradcheck", "--backend", "newton", "--task", "ant", "--backend-option", "fd_scheme=forward"], "no option"),
         (

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import json
+import shlex
 import subprocess
 import sys
 from importlib.metadata import EntryPoint
+from pathlib import Path
 
 import pytest
 
@@ -111,3 +113,17 @@ def test_a_shared_flags_help_says_what_it_means_in_that_verb(verb, flag, says, c
     start = text.index(flag + " ", text.index("options:"))  # its entry, not the usage line
     assert says in text[start : start + 200], text[start : start + 200]
     assert "(eval:" not in text and "grad-growth)" not in text  # no other verb's meaning leaks in
+
+
+def test_a_reader_that_leaves_early_ends_the_command_quietly():
+    """``python -m harness list | true``: the reader is gone before the first line is written (imports
+    take a second); the closed pipe ends the command without a traceback."""
+    out = subprocess.run(
+        f"{shlex.quote(sys.executable)} -m harness list | true",
+        shell=True,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=Path(__file__).resolve().parents[1],
+    )
+    assert out.stderr == "", out.stderr

@@ -77,7 +77,8 @@ def test_physics_spec_refuses_a_frozen_or_backwards_simulation(bad):
 
 
 def test_every_asset_kind_ships_in_the_wheel(tmp_path):
-    """Package data covers MJCF, URDF, meshes and tet meshes (built from a copy of the tree, not in place)."""
+    """Package data covers MJCF, URDF, meshes and tet meshes, and the wheel records the commit it was
+    built from (built from a copy of the tree, not in place)."""
     pytest.importorskip("setuptools")
     tree = tmp_path / "src"
     shutil.copytree(ROOT, tree, ignore=shutil.ignore_patterns(".git", ".tox", "results", "build", "*.egg-info"))
@@ -86,6 +87,11 @@ def test_every_asset_kind_ships_in_the_wheel(tmp_path):
     for name, text in kinds.items():
         (tree / "tasks" / "assets" / name).parent.mkdir(parents=True, exist_ok=True)
         (tree / "tasks" / "assets" / name).write_text(text)
+    # a checkout of its own: the wheel records its commit (setup.py), as provenance reads it once installed
+    git = ["git", "-c", "user.email=probe@example.com", "-c", "user.name=probe"]
+    subprocess.run([*git, "init", "-q"], cwd=tree, check=True)
+    subprocess.run([*git, "commit", "-q", "--allow-empty", "-m", "probe"], cwd=tree, check=True)
+    head = subprocess.run([*git, "rev-parse", "--short", "HEAD"], cwd=tree, capture_output=True, text=True).stdout
     out = subprocess.run(
         [
             sys.executable,
@@ -109,6 +115,7 @@ def test_every_asset_kind_ships_in_the_wheel(tmp_path):
     for name in kinds:
         assert f"tasks/assets/{name}" in names, name
     assert "tasks/assets/ant.xml" in names and "simcore.py" in names
+    assert zipfile.ZipFile(wheel).read("harness/_commit.txt").decode().strip() == head.strip()
 
 
 def test_every_hyperparameter_flag_documents_itself():
@@ -177,6 +184,23 @@ def test_warp_starts_quietly_on_a_cpu_machine_but_keeps_other_warnings():
         timeout=300,
     )
     assert out.returncode == 0 and NO_DRIVER_LINE not in out.stderr, out.stderr
+
+
+def test_provenance_says_whether_the_checkout_had_uncommitted_changes(tmp_path):
+    from harness.results import _git_dirty, provenance
+
+    assert "git_dirty" in provenance("x")
+    assert _git_dirty(tmp_path) is None  # not a checkout
+    git = ["git", "-c", "user.email=probe@example.com", "-c", "user.name=probe"]
+    subprocess.run([*git, "init", "-q"], cwd=tmp_path, check=True)
+    (tmp_path / "tracked.txt").write_text("a\n")
+    subprocess.run([*git, "add", "tracked.txt"], cwd=tmp_path, check=True)
+    subprocess.run([*git, "commit", "-q", "-m", "probe"], cwd=tmp_path, check=True)
+    assert _git_dirty(tmp_path) is False
+    (tmp_path / "untracked.txt").write_text("b\n")
+    assert _git_dirty(tmp_path) is False  # untracked files are not the code
+    (tmp_path / "tracked.txt").write_text("changed\n")
+    assert _git_dirty(tmp_path) is True
 
 
 def test_provenance_says_which_machine_and_threads():

@@ -126,6 +126,9 @@ from simcore import (
 FD_SCHEMES = ("central", "forward", "one_sided", "adaptive")  # schemes of the ``fd_scheme`` option
 #: each scheme's default position step (articulated tasks; module docstring, "Steps")
 FD_EPS_STATE = {"central": 5e-4, "forward": 2.5e-4, "one_sided": 5e-4, "adaptive": 2.5e-4}
+#: a scheme's default velocity step where it is not the position step's: ``adaptive`` handles the
+#: switches a large step straddles, so its velocities take the step float32 favours (docs/mujoco-warp.md)
+FD_EPS_VELOCITY = {"adaptive": 1e-2}
 #: ``one_sided``: a coordinate whose forward and backward quotients differ by more than this fraction of
 #: the larger has a switch (a contact made or broken) inside its stencil
 SWITCH_DISAGREEMENT = 0.5
@@ -199,7 +202,7 @@ def _urdf_without_visuals(path) -> str:
 def fd_settings(task, options: dict) -> dict:
     """The finite-difference settings of ``task`` under adapter ``options``: each option's value, or
     its default (module docstring), validated. Articulated tasks: ``fd_scheme`` (one_sided),
-    ``fd_eps_state`` (positions), ``fd_eps_velocity`` (default: the positions' step),
+    ``fd_eps_state`` (positions), ``fd_eps_velocity`` (default: the positions' step; adaptive: 1e-2),
     ``fd_eps_control``, ``fd_warmstart`` and ``fd_tolerance`` (the perturbed worlds' solves); soft
     bodies: central differences, ``fd_eps_state`` and ``fd_eps_control``."""
     soft = task.control_kind == ControlKind.TET_ACTIVATION
@@ -221,7 +224,7 @@ def fd_settings(task, options: dict) -> dict:
         settings = {
             "fd_scheme": scheme,
             "fd_eps_state": eps_state,
-            "fd_eps_velocity": float(options.get("fd_eps_velocity", eps_state)),
+            "fd_eps_velocity": float(options.get("fd_eps_velocity", FD_EPS_VELOCITY.get(scheme, eps_state))),
             # 1 N m of torque, or 1e-2 rad of PD target (x kp = 0.3 N m on the Go2); module docstring
             "fd_eps_control": float(options.get("fd_eps_control", 1e-2 if position_control else 1.0)),
             "fd_warmstart": str(options.get("fd_warmstart", "zero")),

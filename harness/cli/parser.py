@@ -17,6 +17,7 @@ from harness.spec_schema import (
     MAX_ENVS,
     MAX_EPOCHS,
     MAX_EVAL_SEEDS,
+    MAX_FD_CONTACT_STATES,
     MAX_GRID,
     MAX_HORIZON,
     MAX_STEP_GAIN_STATES,
@@ -473,7 +474,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--contact-states",
-        type=_nonnegative_int,
+        type=_int_in(1, MAX_FD_CONTACT_STATES),
         default=48,
         help="states in contact each setting is compared on (a multiple of --num-envs) (default: %(default)s)",
     )

@@ -126,6 +126,11 @@ def cmd_fd_schemes(args) -> int:
         raise BadInput("fd-schemes compares schemes on articulated tasks (ant, go2); soft bodies have no C reference")
     from backends.mujoco_warp.adapter import FD_SCHEMES
 
+    if args.contact_states % args.num_envs:
+        raise BadInput(
+            f"--contact-states {args.contact_states} is not a multiple of --num-envs {args.num_envs}: "
+            "the states are compared in batches of the envs"
+        )
     unknown = sorted(set(args.schemes or ()) - set(FD_SCHEMES))
     if unknown:
         raise BadInput(f"--schemes: unknown scheme {unknown[0]!r}; choose from {', '.join(FD_SCHEMES)}")
