@@ -37,6 +37,11 @@ def _truncate(path: Path) -> None:
 # (case id, args with RUN = a damaged copy of the template run and FILE = an existing file, damage)
 CLI_CASES = [
     ("unknown verb", ["fly"], None, "invalid choice"),
+    ("empty backend to render", ["render", "--run", "RUN", "--backend", ""], None, "expected a non-empty value"),
+    ("empty parity output", ["parity", "--task", "ant", "--out", ""], None, "expected a non-empty value"),
+    ("empty preset to train", [*TRAIN, "--preset", "", "--out", "new_run"], None, "expected a non-empty value"),
+    ("empty fd-schemes output", ["fd-schemes", "--task", "ant", "--out", ""], None, "expected a non-empty value"),
+    ("newline in an output name", [*TRAIN, "--out", "a\nb"], None, "expected one line"),
     ("render without a run", ["render", "--run", "nope"], None, "not a run directory"),
     (
         "render compare and backend",
@@ -104,7 +109,7 @@ CLI_CASES = [
     ("zero hidden width", [*TRAIN, "--actor-hidden", "0", "--out", "o"], None, "hidden widths"),
     ("negative weight decay", [*TRAIN, "--weight-decay", "-0.1", "--out", "o"], None, "weight_decay must be >= 0"),
     ("bogus bool", [*TRAIN, "--obs-norm", "maybe", "--out", "o"], None, "true or false"),
-    ("empty out", [*TRAIN, "--out", ""], None, "--out is empty"),
+    ("empty out", [*TRAIN, "--out", ""], None, "--out: expected a non-empty value"),
     ("out is a file", [*TRAIN, "--out", "FILE"], None, "is a file, not a directory"),
     ("out below a file", [*TRAIN, "--out", "FILE/run"], None, "is a file, not a directory"),
     ("out in an unwritable place", [*TRAIN, "--out", "/proc/diffsim-run"], None, "--out /proc/diffsim-run"),
@@ -185,7 +190,7 @@ CLI_CASES = [
         "sweep into an empty path",
         ["sweep", *ANT, "--algos", "shac", "--epochs", "1", "--out", ""],
         None,
-        "--out is empty",
+        "--out: expected a non-empty value",
     ),
     (
         "sweep into a file",

@@ -74,6 +74,16 @@ def _nonnegative_int(text: str) -> int:
     return value
 
 
+def _text(text: str) -> str:
+    """A name or path given on the command line: not empty (an empty value would read as "not given"),
+    one line, no control characters."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("expected a non-empty value, got ''")
+    if any(ord(ch) < 32 for ch in text):
+        raise argparse.ArgumentTypeError(f"expected one line without control characters, got {text!r}")
+    return text
+
+
 def _finite(text: str) -> float:
     try:
         value = float(text)
@@ -128,16 +138,16 @@ def _optional_float(text: str) -> float | None:
 # -- every flag, declared once --------------------------------------------------------------------
 
 FLAGS: dict[str, dict] = {
-    "backend": {"help": "adapter name (see `list`)"},
-    "backends": {"nargs": "+", "help": "two or more adapter names (see `list`)"},
-    "preset": {"help": "the task's physics preset (see `list`; default: the task's own default)"},
+    "backend": {"type": _text, "help": "adapter name (see `list`)"},
+    "backends": {"type": _text, "nargs": "+", "help": "two or more adapter names (see `list`)"},
+    "preset": {"type": _text, "help": "the task's physics preset (see `list`; default: the task's own default)"},
     "episode_seeds": {"type": _positive_int, "default": 5, "help": "seeds of the random-policy episodes"},
-    "task": {"help": "task name (see `list`)"},
-    "algo": {"help": "one of: " + ", ".join(ALGORITHMS)},
-    "algos": {"nargs": "+", "help": "algorithm presets to train, e.g. shac shac-tdadpt"},
+    "task": {"type": _text, "help": "task name (see `list`)"},
+    "algo": {"type": _text, "help": "one of: " + ", ".join(ALGORITHMS)},
+    "algos": {"type": _text, "nargs": "+", "help": "algorithm presets to train, e.g. shac shac-tdadpt"},
     "num_envs": {"type": _int_in(1, MAX_ENVS), "help": "parallel environments N"},
     "horizon": {"type": _int_in(1, MAX_HORIZON), "help": "control steps per window h (the graph is cut after each)"},
-    "device": {"default": "cpu", "help": "torch/warp device, e.g. cpu or cuda:0"},
+    "device": {"type": _text, "default": "cpu", "help": "torch/warp device, e.g. cpu or cuda:0"},
     "seed": {
         "type": _int_in(0, INT_MAX),
         "default": 0,
@@ -146,9 +156,9 @@ FLAGS: dict[str, dict] = {
     "seeds": {"type": _int_in(0, INT_MAX), "nargs": "+", "default": [0], "help": "training seeds"},
     "steps": {"type": _positive_int, "default": 8, "help": "control steps in the differentiated rollout"},
     "epochs": {"type": _int_in(1, MAX_EPOCHS), "help": "training epochs"},
-    "out": {"help": "the result file to write (JSON)"},
-    "run": {"help": "run directory written by `train`"},
-    "runs": {"nargs": "+", "help": "run directories written by `train`"},
+    "out": {"type": _text, "help": "the result file to write (JSON)"},
+    "run": {"type": _text, "help": "run directory written by `train`"},
+    "runs": {"type": _text, "nargs": "+", "help": "run directories written by `train`"},
     "windows": {"type": _positive_int, "help": "timed windows of h steps of each kind (the best is kept)"},
     "eval_seeds": {"type": _int_in(1, MAX_EVAL_SEEDS), "default": 10, "help": "evaluation seeds (10000, 10001, ...)"},
     "max_steps": {"type": _int_in(1, MAX_STEPS), "help": "cap on steps per evaluation episode (default: the task's)"},
@@ -163,7 +173,10 @@ FLAGS: dict[str, dict] = {
         "default": "local",
         "help": "where runs execute: local processes, one per core, or Ray tasks (pip install 'diffsim-bench[ray]')",
     },
-    "address": {"help": "Ray head HOST:PORT to join (default: RAY_ADDRESS if set, else a new local Ray instance)"},
+    "address": {
+        "type": _text,
+        "help": "Ray head HOST:PORT to join (default: RAY_ADDRESS if set, else a new local Ray instance)",
+    },
     "gpus_per_run": {
         "type": _positive_float,
         "default": 0.25,
