@@ -28,7 +28,9 @@ MAX_ENVS = 65_536
 MAX_GRID = 400
 MAX_STEP_GAIN_STATES = 65_536
 MAX_STRIDE = 1000
-MAX_FD_CONTACT_STATES = 4096  # fd-schemes: each state costs every row a float64 reference (about a second)
+MAX_CONTACT_STATES = 4096  # contact-jacobians, fd-schemes: each state costs a float64 reference (about a second)
+MAX_SEGMENT_STEPS = 10_000  # a compared or differentiated segment (gradcheck, crosscheck, parity); stored per step
+MAX_SPAN = 100.0  # a landscape axis's half-width in the policy's parameter units (the paper's is 1)
 MAX_EPOCHS = 10**6
 MAX_HORIZON = 10_000
 MAX_EVAL_SEEDS = 1000
@@ -241,7 +243,7 @@ SIM_TO_SIM = table(
     required=("task", "train_backend", "eval_backend"),
 )
 LANDSCAPE = table(
-    {**SELECTION, "backend": backend, "grid": integer(2, MAX_GRID), "span": number(0.0, 1e6, low_open=True)}
+    {**SELECTION, "backend": backend, "grid": integer(2, MAX_GRID), "span": number(0.0, MAX_SPAN, low_open=True)}
     | {"num_envs": integer(1, MAX_ENVS)},
     required=("task", "backend"),
 )

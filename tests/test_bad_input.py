@@ -42,6 +42,15 @@ CLI_CASES = [
     ("empty preset to train", [*TRAIN, "--preset", "", "--out", "new_run"], None, "expected a non-empty value"),
     ("empty fd-schemes output", ["fd-schemes", "--task", "ant", "--out", ""], None, "expected a non-empty value"),
     ("newline in an output name", [*TRAIN, "--out", "a\nb"], None, "expected one line"),
+    (
+        "parity: a billion episode seeds",
+        ["parity", "--task", "ant", "--episode-seeds", "1000000000"],
+        None,
+        "[1, 1000]",
+    ),
+    ("parity: a billion steps", ["parity", "--task", "ant", "--steps", "1000000000"], None, "[1, 10000]"),
+    ("contact-jacobians: a billion states", ["contact-jacobians", *ANT, "--states", "1000000000"], None, "[1, 4096]"),
+    ("landscape: a span of 1e30", ["landscape", "--run", "RUN", "--span", "1e30"], None, "(0, 100]"),
     ("render without a run", ["render", "--run", "nope"], None, "not a run directory"),
     (
         "render compare and backend",

@@ -14,12 +14,14 @@ from algorithms.config import ALGORITHMS
 from harness.cli.inputs import BadInput
 from harness.spec_schema import (
     INT_MAX,
+    MAX_CONTACT_STATES,
     MAX_ENVS,
     MAX_EPOCHS,
     MAX_EVAL_SEEDS,
-    MAX_FD_CONTACT_STATES,
     MAX_GRID,
     MAX_HORIZON,
+    MAX_SEGMENT_STEPS,
+    MAX_SPAN,
     MAX_STEP_GAIN_STATES,
     MAX_STEPS,
     MAX_STRIDE,
@@ -123,6 +125,14 @@ def _positive_float(text: str) -> float:
     return value
 
 
+def _span(text: str) -> float:
+    """A landscape's half-width: positive, at most :data:`MAX_SPAN` (beyond it every point is NaN)."""
+    value = _positive_float(text)
+    if value > MAX_SPAN:
+        raise argparse.ArgumentTypeError(f"expected a number in (0, {MAX_SPAN:g}], got {text!r}")
+    return value
+
+
 def _bool(text: str) -> bool:
     if text.lower() in ("1", "true", "yes"):
         return True
@@ -141,7 +151,7 @@ FLAGS: dict[str, dict] = {
     "backend": {"type": _text, "help": "adapter name (see `list`)"},
     "backends": {"type": _text, "nargs": "+", "help": "two or more adapter names (see `list`)"},
     "preset": {"type": _text, "help": "the task's physics preset (see `list`; default: the task's own default)"},
-    "episode_seeds": {"type": _positive_int, "default": 5, "help": "seeds of the random-policy episodes"},
+    "episode_seeds": {"type": _int_in(1, MAX_EVAL_SEEDS), "default": 5, "help": "seeds of the random-policy episodes"},
     "task": {"type": _text, "help": "task name (see `list`)"},
     "algo": {"type": _text, "help": "one of: " + ", ".join(ALGORITHMS)},
     "algos": {"type": _text, "nargs": "+", "help": "algorithm presets to train, e.g. shac shac-tdadpt"},
@@ -154,7 +164,11 @@ FLAGS: dict[str, dict] = {
         "help": "random seed of the run (initial states, noise, weights)",
     },
     "seeds": {"type": _int_in(0, INT_MAX), "nargs": "+", "default": [0], "help": "training seeds"},
-    "steps": {"type": _positive_int, "default": 8, "help": "control steps in the differentiated rollout"},
+    "steps": {
+        "type": _int_in(1, MAX_SEGMENT_STEPS),
+        "default": 8,
+        "help": "control steps in the differentiated rollout",
+    },
     "epochs": {"type": _int_in(1, MAX_EPOCHS), "help": "training epochs"},
     "out": {"type": _text, "help": "the result file to write (JSON)"},
     "run": {"type": _text, "help": "run directory written by `train`"},
@@ -441,7 +455,9 @@ def build_parser() -> argparse.ArgumentParser:
         *("backend", "task", "preset", "num_envs", "device", "seed", "out", "backend_option"),
         required=("backend", "task"),
     )
-    p.add_argument("--states", type=_positive_int, default=200, help="states in contact compared (default 200)")
+    p.add_argument(
+        "--states", type=_int_in(1, MAX_CONTACT_STATES), default=200, help="states in contact compared (default 200)"
+    )
     p.add_argument("--stride", type=_positive_int, default=5, help="steps between sampled states of an env")
     p.add_argument(
         "--policy-epochs",
@@ -487,7 +503,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--contact-states",
-        type=_int_in(1, MAX_FD_CONTACT_STATES),
+        type=_int_in(1, MAX_CONTACT_STATES),
         default=48,
         help="states in contact each setting is compared on (a multiple of --num-envs) (default: %(default)s)",
     )
@@ -556,7 +572,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("landscape", help="h-step and TD-lambda actor losses over a plane of policy parameters")
     _add(p, "landscape", "run", "num_envs", "seed", required=("run",))
     p.add_argument("--grid", type=_int_in(2, MAX_GRID), default=40, help="points per axis (default: %(default)s)")
-    p.add_argument("--span", type=_positive_float, default=1.0, help="each axis spans [-span, span] (default: 1)")
+    p.add_argument("--span", type=_span, default=1.0, help="each axis spans [-span, span] (default: 1)")
     p.add_argument("--warmup-steps", type=_nonnegative_int, default=0, help="policy steps before the window")
 
     p = sub.add_parser(

@@ -219,7 +219,8 @@ def cmd_landscape(args) -> int:
     print(f"wrote {write_landscape(args.run, result)}")
     print(f"wrote {plot_landscape(result, Path(args.run) / 'landscape.png')}")
     r = result["roughness"]
-    print(f"roughness: h-step {r['h_step']:.3f}, TD-lambda {r['td_lambda']:.3f}")
+    shown = {k: "n/a (non-finite points)" if r.get(k) is None else f"{r[k]:.3f}" for k in ("h_step", "td_lambda")}
+    print(f"roughness: h-step {shown['h_step']}, TD-lambda {shown['td_lambda']}")
     return 0
 
 
