@@ -185,7 +185,7 @@ def _mujoco_warp_rows(sim, model, q, qd, actions, progress) -> list[dict]:
     for count, (qb, qdb, ab) in _batches(sim.num_envs, q, qd, actions):
         engine = sim.state_from_generalized(qb, qdb).engine.detach()
         control = sim.task.actions_to_control(ab)
-        _, jac_state, jac_control = sim.fd_jacobians(engine, control)
+        _, jac_state, jac_control = sim.step_jacobians(engine, control)
         for i in range(count):
             _, ref_state, ref_control = float64_step_jacobians(sim, engine[i], control[i], model=model)
             jac = np.concatenate((jac_state[i].numpy(), jac_control[i].numpy()), axis=1)

@@ -40,11 +40,31 @@ from tasks import make_task
 N = 3
 
 
-def contract_cases(backend_names=()) -> list[tuple[str, str]]:
+def contract_cases(backend_names=(), task_names=()) -> list[tuple[str, str]]:
     """(adapter, task) pairs: every named adapter (all registered ones if none are named) on each of
-    its ``contract_tasks``."""
+    its ``contract_tasks`` (those among ``task_names`` when given)."""
     names = tuple(backend_names) or tuple(backends.available())
-    return [(name, task) for name in names for task in backends.get(name).contract_tasks]
+    return [
+        (name, task)
+        for name in names
+        for task in backends.get(name).contract_tasks
+        if not task_names or task in task_names
+    ]
+
+
+def with_options(cls, options: dict):
+    """``cls`` with ``options`` given to every instance (explicit keyword arguments win): the suite run
+    on one of an adapter's modes, e.g. another gradient mode."""
+    if not options:
+        return cls
+    fixed = dict(options)
+
+    class Configured(cls):
+        def __init__(self, task, **kwargs):
+            super().__init__(task, **{**fixed, **kwargs})
+
+    Configured.__name__ = Configured.__qualname__ = f"{cls.__name__}[{', '.join(f'{k}={v}' for k, v in fixed.items())}]"
+    return Configured
 
 
 def _sim(adapter, num_envs=N, seed=0):
@@ -63,11 +83,15 @@ class ContractSuite:
 
     #: the registry names of the adapters to check; empty: every registered adapter
     backend_names: tuple[str, ...] = ()
+    #: adapter options every sim of the suite is built with (e.g. ``{"gradients": "adjoint"}``)
+    backend_options: dict = {}
+    #: the tasks to check, among each adapter's ``contract_tasks``; empty: all of them
+    task_names: tuple[str, ...] = ()
 
     def pytest_generate_tests(self, metafunc):
         """pytest calls this for every test of the class: ``adapter`` takes each contract case."""
         if "adapter" in metafunc.fixturenames:
-            cases = contract_cases(self.backend_names)
+            cases = contract_cases(self.backend_names, self.task_names)
             ids = [f"{b}-{t}" for b, t in cases]
             metafunc.parametrize("adapter", cases, ids=ids, indirect=True, scope="class")
 
@@ -76,7 +100,7 @@ class ContractSuite:
     def adapter(cls, request):
         """(adapter class, task instance) of one contract case."""
         name, task_name = request.param
-        return backends.get(name), make_task(task_name)
+        return with_options(backends.get(name), cls.backend_options), make_task(task_name)
 
     def test_state_shapes_and_dtypes(self, adapter):
         sim = _sim(adapter)

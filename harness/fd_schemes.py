@@ -1,7 +1,8 @@
-"""Accuracy versus cost of the MuJoCo-Warp adapter's finite-difference settings, with and without contact.
+"""Accuracy versus cost of the MuJoCo-Warp adapter's gradients, with and without contact.
 
-Each row of ``GRID`` is a set of the adapter's options: the scheme (``fd_scheme``: central, forward,
-one_sided or adaptive differences), the steps (``fd_eps_state``, ``fd_eps_control``) and the perturbed worlds' solver
+Each row of ``GRID`` is a set of the adapter's options: the analytic adjoint (``gradients=adjoint``),
+or a finite-difference scheme (``fd_scheme``: central, forward, one_sided or adaptive differences),
+the steps (``fd_eps_state``, ``fd_eps_control``) and the perturbed worlds' solver
 settings (``fd_warmstart``: each world's own warm start from zero, or the nominal world's carried
 into its perturbed worlds at every substep; ``fd_tolerance``: the perturbed worlds' solver tolerance,
 0 running the full iteration count). Every row is compared on the same states with the float64 MuJoCo
@@ -23,8 +24,8 @@ the control step is varied after it, at the adapter's default scheme, by the fac
 ``CONTROL_FACTORS`` around the task's default control step (N m for torques, rad for position
 targets).
 
-Cost: the seconds of one control step with gradients (:meth:`MujocoWarpSim.fd_jacobians`, best of
-``windows`` after a warm-up) for ``timing_envs`` envs on the ground, and the worlds it steps (for
+Cost: the seconds of one control step with gradients and its backward pass (what a training step pays;
+best of ``windows`` after a warm-up) for ``timing_envs`` envs on the ground, and the worlds it steps (for
 ``adaptive``, its nominal and +eps worlds plus the mean share of -eps worlds it added in contact).
 """
 
@@ -75,6 +76,7 @@ GRID = (
     {"fd_scheme": "adaptive", "fd_eps_state": 2.5e-4, "fd_eps_velocity": 2.5e-4},
     {"fd_scheme": "adaptive", "fd_eps_state": 2.5e-4, "fd_eps_velocity": 1e-2},
     {"fd_scheme": "adaptive", "fd_eps_state": 5e-4, "fd_eps_velocity": 5e-4},
+    {"gradients": "adjoint"},  # the analytic gradients, on the same states (no steps to set)
 )
 #: the control step's rows: the adapter's default settings with the control step times each factor
 CONTROL_FACTORS = (0.01, 0.1, 10.0)
@@ -107,7 +109,7 @@ def _errors(sim, engine: torch.Tensor, control: torch.Tensor, refs: list[tuple[n
     the ratio of its state gain to the reference's."""
     from harness.contact_jacobians import gains, tangent_gain_columns
 
-    _, jac_state, jac_control = sim.fd_jacobians(engine, control)
+    _, jac_state, jac_control = sim.step_jacobians(engine, control)
     layout = sim.layout
     nv = layout.nv
     blocks = {"position": slice(0, nv), "velocity": slice(nv, 2 * nv), "control": slice(2 * nv, None)}
@@ -149,24 +151,42 @@ def _contact(task, sim, model, count: int, seed: int, settle: int):
 
 
 def _step_seconds(sim, windows: int) -> float:
+    """Best-of-``windows`` seconds of one control step with gradients and its backward pass (a vector-
+    Jacobian product), what a training step pays: the finite differences' Jacobians are made in the
+    step, the adjoint's work is in the backward pass."""
     engine = sim.state.engine.detach()
     control = sim.task.actions_to_control(torch.zeros(sim.num_envs, sim.task.action_dim))
-    sim.fd_jacobians(engine, control)  # warm-up: kernels, buffers of this many worlds
-    best = float("inf")
-    for _ in range(windows):
+
+    def step_and_backward() -> float:
         start = time.perf_counter()
-        sim.fd_jacobians(engine, control)
-        best = min(best, time.perf_counter() - start)
-    return best
+        x, u = engine.clone().requires_grad_(True), control.clone().requires_grad_(True)
+        sim.simulate(sim._state_from_engine(x), u).engine.sum().backward()
+        return time.perf_counter() - start
+
+    step_and_backward()  # warm-up: kernels, buffers of this many worlds
+    return min(step_and_backward() for _ in range(windows))
+
+
+def _fd_fields(sim) -> dict:
+    """A row's gradient settings: the finite differences' scheme and steps, or the adjoint's (none)."""
+    names = ("fd_eps_state", "fd_eps_velocity", "fd_eps_control", "fd_warmstart", "fd_tolerance")
+    if sim.gradients == "adjoint":
+        return {"fd_scheme": "adjoint", **dict.fromkeys(names)}
+    return {"fd_scheme": sim.fd_scheme, **{name: getattr(sim, name) for name in names}}
 
 
 def _worlds_per_env(sim, second_sides: list[float]) -> float:
     """The worlds one env stepped per control step: the scheme's fixed batch, and for ``adaptive`` the
     mean share of -eps worlds it added on the in-contact states (one per coordinate with a switch)."""
     worlds = sim.worlds_per_env_with_grad
-    if sim.fd_scheme != "adaptive" or not second_sides:
+    if sim.gradients == "adjoint" or sim.fd_scheme != "adaptive" or not second_sides:
         return float(worlds)
     return worlds + float(np.mean(second_sides)) * (worlds - 1)
+
+
+def _scheme(options: dict) -> str:
+    """A grid row's scheme: its ``fd_scheme``, or ``adjoint`` for the analytic gradients."""
+    return "adjoint" if options.get("gradients") == "adjoint" else options.get("fd_scheme")
 
 
 def _label(options: dict) -> str:
@@ -191,7 +211,7 @@ def fd_schemes(
     rows of these schemes (the control-step rows, the default scheme's, when it is among them)."""
     task = make_task(task_name)
     if schemes is not None:
-        grid = [options for options in grid if options.get("fd_scheme") in schemes]
+        grid = [options for options in grid if _scheme(options) in schemes]
         if fd_settings(task, {})["fd_scheme"] not in schemes:
             control_factors = ()
     sampler = make("mujoco_warp", task, num_envs=num_envs, seed=seed)
@@ -206,7 +226,7 @@ def fd_schemes(
         contact_errors, sticking, second_sides = [], [], []
         for engine, control, classes, refs in batches:
             errors = _errors(sim, engine, control, refs)
-            if sim.fd_scheme == "adaptive":
+            if sim.gradients == "fd" and sim.fd_scheme == "adaptive":
                 second_sides.append(sim.second_side_share)
             contact_errors += errors
             sticking += [e["all"] for e, c in zip(errors, classes, strict=True) if c["sticking"] and not c["onset"]]
@@ -221,12 +241,7 @@ def fd_schemes(
         contact = np.asarray([e["all"] for e in contact_errors])
         row = {
             "options": dict(options),
-            "fd_scheme": sim.fd_scheme,
-            "fd_eps_state": sim.fd_eps_state,
-            "fd_eps_velocity": sim.fd_eps_velocity,
-            "fd_eps_control": sim.fd_eps_control,
-            "fd_warmstart": sim.fd_warmstart,
-            "fd_tolerance": sim.fd_tolerance,
+            **_fd_fields(sim),
             "worlds_per_env": _worlds_per_env(sim, second_sides),
             "contact_free_error_max": float(max(free_errors)),
             "contact_states": int(contact.size),
@@ -269,6 +284,14 @@ def fd_schemes(
     }
 
 
+def _steps_cells(r: dict) -> str:
+    tolerance = "model's" if r["fd_tolerance"] is None else f"{r['fd_tolerance']:g}"
+    return (
+        f"| {r['fd_eps_state']:g} | {r['fd_eps_velocity']:g} | {r['fd_eps_control']:g} | {r['fd_warmstart']} "
+        f"| {tolerance} "
+    )
+
+
 def markdown(report: dict, command: str) -> str:
     """The report as a Markdown table, with the command that made it."""
     lines = [
@@ -293,11 +316,9 @@ def markdown(report: dict, command: str) -> str:
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in report["rows"]:
-        tolerance = "model's" if r["fd_tolerance"] is None else f"{r['fd_tolerance']:g}"
+        steps = "| - | - | - | - | - " if r["fd_scheme"] == "adjoint" else _steps_cells(r)
         lines.append(
-            f"| {r['fd_scheme']} | {r['fd_eps_state']:g} | {r['fd_eps_velocity']:g} | {r['fd_eps_control']:g} "
-            f"| {r['fd_warmstart']} "
-            f"| {tolerance} | {r['worlds_per_env']:.4g} | {r['contact_free_error_max']:.1e} "
+            f"| {r['fd_scheme']} {steps}| {r['worlds_per_env']:.4g} | {r['contact_free_error_max']:.1e} "
             f"| {r['contact_error_median']:.2g} ({r['contact_states']}) | {r['contact_within_5pct']:.0%} "
             f"| {' / '.join(f'{v:.2g}' for v in r['contact_error_median_by_kind'].values())} "
             f"| {r['contact_spurious_gain_share']:.0%} ({r['contact_gain_ratio_max']:.3g}) "

@@ -39,7 +39,13 @@ One control step is a pure function of (qpos, qvel, torque): ``qacc_warmstart`` 
 solver's warm start, MuJoCo's only other carried state here) is zeroed at the start of each
 control step and carried only across its substeps.
 
-Gradients (:meth:`MujocoWarpSim.fd_jacobians`, :class:`_MujocoWarpStep`):
+Gradients, option ``gradients``: ``fd``, the default, batched finite differences (below); or ``adjoint``,
+the analytic adjoint of MuJoCo's step (:mod:`backends.mujoco_warp.adjoint`; :class:`_AdjointStep`): the
+forward steps the nominal worlds only, recording each substep's input and converged acceleration, and
+the backward replays each substep in torch at those states. It covers rigid trees of spheres and
+capsules on the plane (the Ant) and refuses every other model when the adapter is built.
+
+Finite differences (:meth:`MujocoWarpSim.fd_jacobians`, :class:`_MujocoWarpStep`):
 
 * Tangent coordinates per env: 2 * nv = 28 state coordinates (root position, root rotation,
   hinges, all of qvel) and nu = 8 torques. The rotation is perturbed on the manifold,
@@ -106,6 +112,8 @@ import warp as wp
 
 from backends._warp import option_flag, warp_device
 from backends.contract import BackendError, BatchedSim, inert_by_definition
+from backends.mujoco_warp.adjoint.step import control_step_vjp
+from backends.mujoco_warp.adjoint.tree import rigid_tree
 from backends.mujoco_warp.penalty import IMPEDANCE, apply_penalty_constants
 from backends.mujoco_warp.soft import SoftEnvModels
 from backends.mujoco_warp.stepping import SubstepReplay, run_substeps
@@ -123,6 +131,8 @@ from simcore import (
     xyzw_to_wxyz,
 )
 
+#: the ``gradients`` option: batched finite differences, or the analytic adjoint (:mod:`.adjoint`)
+GRADIENT_MODES = ("fd", "adjoint")
 FD_SCHEMES = ("central", "forward", "one_sided", "adaptive")  # schemes of the ``fd_scheme`` option
 #: each scheme's default position step (articulated tasks; module docstring, "Steps")
 FD_EPS_STATE = {"central": 5e-4, "forward": 2.5e-4, "one_sided": 5e-4, "adaptive": 2.5e-4}
@@ -207,6 +217,16 @@ def fd_settings(task, options: dict) -> dict:
     bodies: central differences, ``fd_eps_state`` and ``fd_eps_control``."""
     soft = task.control_kind == ControlKind.TET_ACTIVATION
     position_control = task.control_kind == ControlKind.JOINT_POSITION_TARGET
+    mode = str(options.get("gradients", "fd"))
+    if mode not in GRADIENT_MODES:
+        raise ValueError(f"gradients must be one of {', '.join(GRADIENT_MODES)}, got {mode!r}")
+    if mode == "adjoint":
+        stray = sorted(name for name in options if name.startswith("fd_"))
+        if stray:
+            raise ValueError(f"{', '.join(stray)} set the finite differences; gradients=adjoint takes none")
+        if soft:
+            raise ValueError("gradients=adjoint covers rigid articulated models; soft bodies take gradients=fd")
+        return {"gradients": "adjoint"}
     scheme = str(options.get("fd_scheme", "central" if soft else "one_sided"))
     if scheme not in FD_SCHEMES:
         raise ValueError(f"fd_scheme must be one of {', '.join(FD_SCHEMES)}, got {scheme!r}")
@@ -257,6 +277,7 @@ class MujocoWarpSim(BatchedSim):
     name = "mujoco_warp"
     contract_tasks = ("ant", "go2")
     known_options = (
+        "gradients",
         "fd_scheme",
         "fd_eps_state",
         "fd_eps_velocity",
@@ -281,8 +302,10 @@ class MujocoWarpSim(BatchedSim):
             return self._build_soft()
         if task.layout.num_particles:
             raise BackendError("the mujoco_warp adapter runs particles only as a soft body (tet activations)")
-        for name, value in fd_settings(task, self.options).items():
-            setattr(self, name, value)
+        settings = fd_settings(task, self.options)
+        self.gradients = settings.pop("gradients", "fd")
+        for name, value in (settings or fd_settings(task, {})).items():
+            setattr(self, name, value)  # the adjoint keeps the defaults, unused, so fd_jacobians stays callable
         self.position_control = task.control_kind == ControlKind.JOINT_POSITION_TARGET
         self.fd_chunk_envs = int(self.options.get("fd_chunk_envs", self.num_envs))
         self.nconmax = int(self.options.get("nconmax", 32))
@@ -300,6 +323,7 @@ class MujocoWarpSim(BatchedSim):
             )
         if self.position_control:
             self.check_torque_limits()
+        self.tree = rigid_tree(self.mjm) if self.gradients == "adjoint" else None  # refuses what it does not cover
         self._com_offset = None  # fixed base: the generalized coordinates are MuJoCo's own
         if layout.floating_base:
             root_body = int(self.mjm.jnt_bodyid[0])
@@ -323,6 +347,7 @@ class MujocoWarpSim(BatchedSim):
         task, layout = self.task, self.task.layout
         self.checked_soft_body()
         self.position_control = False
+        self.gradients, self.tree = "fd", None
         for name, value in fd_settings(task, self.options).items():
             setattr(self, name, value)
         self.fd_chunk_worlds = int(self.options.get("fd_chunk_worlds", 256))
@@ -390,8 +415,9 @@ class MujocoWarpSim(BatchedSim):
     def worlds_per_env_with_grad(self) -> int:
         """Worlds one env costs in a step with grad: the nominal world plus one (forward differences)
         or two (central) per tangent coordinate; ``adaptive`` adds one -eps world per coordinate whose
-        stencil holds a switch (``second_side_share`` of them in the last step), at most 1 + 2P."""
-        return self._fd_deltas().shape[0]
+        stencil holds a switch (``second_side_share`` of them in the last step), at most 1 + 2P. The
+        adjoint steps the nominal world only."""
+        return 1 if self.gradients == "adjoint" else self._fd_deltas().shape[0]
 
     def _fd_deltas(self) -> torch.Tensor:
         """(K, P) tangent perturbations, one per world: row 0 nominal, then +eps e_i (P rows), then
@@ -425,7 +451,7 @@ class MujocoWarpSim(BatchedSim):
         if nworld not in self._data:
             with wp.ScopedDevice(self.wp_device):
                 data = mjw.make_data(self.mjm, nworld=nworld, nconmax=self.nconmax, njmax=self.njmax)
-            names = ("qpos", "qvel", "qfrc_applied", "qacc_warmstart", "time", "overflow")
+            names = ("qpos", "qvel", "qacc", "qfrc_applied", "qacc_warmstart", "time", "overflow")
             self._data[nworld] = (data, {k: wp.to_torch(getattr(data, k)) for k in names})
         return self._data[nworld]
 
@@ -458,6 +484,7 @@ class MujocoWarpSim(BatchedSim):
         torque: torch.Tensor,
         blocks: int = 1,
         signatures: list[torch.Tensor] | None = None,
+        records: list[tuple[torch.Tensor, ...]] | None = None,
     ) -> torch.Tensor:
         """One control step of ``W`` independent worlds: (W, nq), (W, nv), (W, J) -> next engine (W, D).
 
@@ -465,7 +492,8 @@ class MujocoWarpSim(BatchedSim):
         from at every substep (``PhysicsSpec.pd_torque``, applied as ``qfrc_applied``). ``blocks`` > 1:
         a finite-difference batch, ``blocks`` perturbations of W / blocks envs, the nominal first,
         solved with the options ``fd_warmstart`` and ``fd_tolerance``. ``signatures``: a list that
-        receives each substep's (W, 2) constraint signatures (:mod:`backends.mujoco_warp.switches`)."""
+        receives each substep's (W, 2) constraint signatures (:mod:`backends.mujoco_warp.switches`);
+        ``records`` each substep's input ``(qpos, qvel)`` and converged ``qacc`` (the adjoint's replay)."""
         worlds = qpos.shape[0]
         data, view = self._data_for(worlds)
         root = self.layout.nv - self.layout.num_dofs
@@ -483,6 +511,8 @@ class MujocoWarpSim(BatchedSim):
         substep = [0]
 
         def before_substep() -> None:
+            if records is not None:
+                records.append((view["qpos"].clone(), view["qvel"].clone()))
             if carry and substep[0] > 0:  # every perturbed world starts its solve where the nominal's did
                 warm[1:] = warm[:1]
             substep[0] += 1
@@ -490,9 +520,14 @@ class MujocoWarpSim(BatchedSim):
                 hinges = view["qpos"][:, self.layout.nq - self.layout.num_dofs :]
                 view["qfrc_applied"][:, root:] = phys.pd_torque(torque, hinges, view["qvel"][:, root:])
 
-        hook = before_substep if (self.position_control or carry) else None
+        hook = before_substep if (self.position_control or carry or records is not None) else None
         record = None
-        if signatures is not None:
+        if records is not None:
+
+            def record() -> None:
+                records[-1] += (view["qacc"].clone(),)
+
+        elif signatures is not None:
             if worlds not in self._signatures:
                 self._signatures[worlds] = ConstraintSignature(data, self.mjm.ngeom)
             signature = self._signatures[worlds]
@@ -528,7 +563,8 @@ class MujocoWarpSim(BatchedSim):
     def simulate(self, state: SimState, control: torch.Tensor) -> SimState:
         control = self.engine_control(control)
         if torch.is_grad_enabled() and (state.engine.requires_grad or control.requires_grad):
-            engine = _MujocoWarpStep.apply(self, state.engine, control)
+            step = _AdjointStep if self.gradients == "adjoint" else _MujocoWarpStep
+            engine = step.apply(self, state.engine, control)
         elif self.soft:
             engine = self._run_soft_envs(state.engine.detach(), control.detach())
         else:
@@ -539,9 +575,10 @@ class MujocoWarpSim(BatchedSim):
     def gradient_step_cost(self, sample_worlds: int | None = None) -> dict:
         """Time one control step of ``sample_worlds`` copies of env 0 (after a warm-up step, which
         compiles kernels) and scale it to the ``worlds_per_env_with_grad * num_envs`` worlds of a step
-        with gradients. Default sample: the whole batch up to 256 worlds for articulated tasks (a
-        fraction of a second), 16 worlds for a soft body (~0.5 s per world on this CPU). Per-world
-        cost falls as batches grow while the CPU is launch-bound, so a partial sample over-estimates."""
+        with gradients (the adjoint: its step and backward replay). Default sample: the whole batch up
+        to 256 worlds for articulated tasks (a fraction of a second), 16 worlds for a soft body (~0.5 s
+        per world on this CPU). Per-world cost falls as batches grow while the CPU is launch-bound, so a
+        partial sample over-estimates."""
         import time
 
         worlds = self.worlds_per_env_with_grad * self.num_envs
@@ -556,6 +593,11 @@ class MujocoWarpSim(BatchedSim):
             start = time.perf_counter()
             if self.soft:
                 self.soft_models.run(0, rows[:, :half], rows[:, half:], control)
+            elif self.gradients == "adjoint":  # the nominal step and its backward replay
+                _, records = self.adjoint_step(rows, control)
+                ones = torch.ones(sample_worlds, self.layout.nq + self.layout.nv, dtype=torch.float64)
+                split = (ones[:, : self.layout.nq], ones[:, self.layout.nq :])
+                control_step_vjp(self.tree, records, control, self.applied_force, *split)
             else:
                 self._run_worlds(rows[:, :half], rows[:, half:], control)
             return time.perf_counter() - start
@@ -654,6 +696,57 @@ class MujocoWarpSim(BatchedSim):
             jac.append(self._fd_quotients(y).T)  # (D, P)
         jac = torch.stack(jac)
         return torch.stack(outputs), jac[:, :, : 2 * half].contiguous(), jac[:, :, 2 * half :].contiguous()
+
+    def step_jacobians(self, engine: torch.Tensor, control: torch.Tensor):
+        """:meth:`fd_jacobians`' triple from this adapter's gradient mode: finite differences, or the
+        adjoint's (:meth:`adjoint_jacobians`)."""
+        if self.gradients == "adjoint":
+            return self.adjoint_jacobians(engine, control)
+        return self.fd_jacobians(engine, control)
+
+    def applied_force(self, control: torch.Tensor, qpos: torch.Tensor, qvel: torch.Tensor) -> torch.Tensor:
+        """The generalized applied force (N, nv) of ``control`` on a substep's state: the hinge torques,
+        or the PD law of position targets (zero on a free root), as :meth:`_run_worlds` applies it."""
+        layout = self.layout
+        root = layout.nv - layout.num_dofs
+        torque = control
+        if self.position_control:
+            torque = self.task.physics.pd_torque(control, qpos[:, layout.nq - layout.num_dofs :], qvel[:, root:])
+        return torch.cat((torque.new_zeros(torque.shape[0], root), torque), dim=1)
+
+    def adjoint_step(self, engine: torch.Tensor, control: torch.Tensor):
+        """Forward step of N worlds recording what the adjoint replays: (next engine (N, D), records)."""
+        qpos, qvel = self._split(engine.detach())
+        records: list = []
+        next_engine = self._run_worlds(qpos.float(), qvel.float(), control.detach().float(), records=records)
+        return next_engine, records
+
+    def adjoint_jacobians(self, engine: torch.Tensor, control: torch.Tensor):
+        """The adjoint's Jacobians in :meth:`fd_jacobians`' form (tangent state columns, ambient rows):
+        one vector-Jacobian product per output row, all rows of all envs in one batch."""
+        n, width = engine.shape
+        next_engine, records = self.adjoint_step(engine, control)
+        rows = [tuple(t.repeat(width, 1) for t in record) for record in records]  # row-major: k * n + e
+        basis = torch.eye(width, dtype=torch.float64).repeat_interleave(n, dim=0)
+        nq = self.layout.nq
+        g_qpos, g_qvel, g_control = control_step_vjp(
+            self.tree, rows, control.repeat(width, 1), self.applied_force, basis[:, :nq], basis[:, nq:]
+        )
+        g_qpos = self.ambient_to_tangent_grad(engine.repeat(width, 1), g_qpos)
+        jac_state = torch.cat((g_qpos, g_qvel), dim=1).reshape(width, n, -1).transpose(0, 1)
+        return next_engine, jac_state.contiguous(), g_control.reshape(width, n, -1).transpose(0, 1).contiguous()
+
+    def ambient_to_tangent_grad(self, engine: torch.Tensor, grad_qpos: torch.Tensor) -> torch.Tensor:
+        """Gradient w.r.t. the tangent position coordinates (N, nv) from the one w.r.t. ``qpos`` (N, nq):
+        the root rotation's ``d/d delta_k = dL/dq . (q * (0, e_k)) / 2`` (``q' = q * exp(delta / 2)``)."""
+        if not self.layout.floating_base:
+            return grad_qpos
+        quat = engine[:, 3:7].to(grad_qpos.dtype)
+        w, v = quat[:, :1], quat[:, 1:]
+        g_w, g_v = grad_qpos[:, 3:4], grad_qpos[:, 4:7]
+        # q * (0, e) = (-v . e, w e + v x e); its dot with (g_w, g_v) is e . (-g_w v + w g_v + g_v x v)
+        g_rot = 0.5 * (-g_w * v + w * g_v + torch.linalg.cross(g_v, v, dim=1))
+        return torch.cat((grad_qpos[:, :3], g_rot, grad_qpos[:, _ROOT_Q:]), dim=1)
 
     def fd_jacobians(
         self, engine: torch.Tensor, control: torch.Tensor
@@ -873,6 +966,28 @@ class _MujocoWarpStep(torch.autograd.Function):
         grad_control = (g @ jac_control).squeeze(1)
         grad_engine = ctx.sim.tangent_to_ambient_grad(engine, grad_tangent)
         return None, grad_engine.to(grad_next.dtype), grad_control.to(grad_next.dtype)
+
+
+class _AdjointStep(torch.autograd.Function):
+    """(engine state, control) -> next engine state; backward replays the substeps' adjoint (:mod:`.adjoint.step`)."""
+
+    @staticmethod
+    def forward(ctx, sim: MujocoWarpSim, engine: torch.Tensor, control: torch.Tensor):
+        next_engine, records = sim.adjoint_step(engine, control)
+        ctx.sim, ctx.records = sim, records
+        ctx.save_for_backward(control.detach())
+        return next_engine
+
+    @staticmethod
+    def backward(ctx, grad_next):
+        (control,) = ctx.saved_tensors
+        sim, nq = ctx.sim, ctx.sim.layout.nq
+        g = grad_next.to(torch.float64)
+        g_qpos, g_qvel, g_control = control_step_vjp(
+            sim.tree, ctx.records, control, sim.applied_force, g[:, :nq].contiguous(), g[:, nq:].contiguous()
+        )
+        grad_engine = torch.cat((g_qpos, g_qvel), dim=1)
+        return None, grad_engine.to(grad_next.dtype), g_control.to(grad_next.dtype)
 
 
 __all__ = ["MujocoWarpSim", "build_spec", "engine_to_generalized", "generalized_to_engine"]

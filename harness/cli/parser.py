@@ -517,8 +517,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--schemes",
         nargs="+",
         metavar="SCHEME",
-        help="compare only the grid's rows of these schemes (central, forward, one_sided, adaptive; the "
-        "control-step rows come with the default scheme, one_sided) (default: every row)",
+        help="compare only the grid's rows of these schemes (central, forward, one_sided, adaptive, or adjoint: "
+        "the analytic gradients; the control-step rows come with the default scheme, one_sided) (default: every row)",
     )
 
     p = sub.add_parser("scaling", help="forward and forward+backward env-steps/s over num_envs: CSV and log-log plot")

@@ -131,9 +131,10 @@ def cmd_fd_schemes(args) -> int:
             f"--contact-states {args.contact_states} is not a multiple of --num-envs {args.num_envs}: "
             "the states are compared in batches of the envs"
         )
-    unknown = sorted(set(args.schemes or ()) - set(FD_SCHEMES))
+    choices = (*FD_SCHEMES, "adjoint")  # "adjoint": the analytic gradients' row
+    unknown = sorted(set(args.schemes or ()) - set(choices))
     if unknown:
-        raise BadInput(f"--schemes: unknown scheme {unknown[0]!r}; choose from {', '.join(FD_SCHEMES)}")
+        raise BadInput(f"--schemes: unknown scheme {unknown[0]!r}; choose from {', '.join(choices)}")
     prefix = out_stem(args.out) if args.out else None  # PREFIX or PREFIX.json: both files
     if prefix:
         _check_output_file(prefix + ".json")
