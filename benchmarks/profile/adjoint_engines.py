@@ -10,7 +10,9 @@ so both see the same machine even while its load moves; the ratio of the two med
 speed as a fraction of Newton's. Then one more MuJoCo-Warp window runs under torch's profiler: the
 forward (MuJoCo-Warp's own step, recording each substep) and the backward by the adjoint's parts
 (:mod:`backends.mujoco_warp.adjoint.step`'s labels: kinematics, mass matrix, bias forces, constraint
-rows, constraint solve, integrator), each part's forward replay and its backward together.
+rows, constraint solve, integrator). Last, each part timed alone (forward and backward, its inputs
+as leaves, at a recorded substep's state of envs standing on the ground) times the substeps of a
+control step: what each part costs a control step's backward pass.
 """
 
 from __future__ import annotations
@@ -58,6 +60,77 @@ def _profiled_window(sim, horizon: int, seed: int) -> dict:
     }
 
 
+def _leaf(t):
+    return t.detach().clone().requires_grad_(True)
+
+
+def _timed(forward, repeats: int) -> float:
+    """Median seconds of ``forward()`` and the backward pass of a weighted sum of its outputs."""
+    import torch
+
+    seconds = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        outputs = [o for o in forward() if o.requires_grad]
+        torch.autograd.backward([o for o in outputs], [torch.ones_like(o) for o in outputs])
+        seconds.append(time.perf_counter() - start)
+    return statistics.median(seconds)
+
+
+def _parts_in_isolation(sim, engine, control, repeats: int = 5) -> dict:
+    """Per part of one substep's replay (at the first substep's recorded state), the seconds of its
+    forward and backward with its inputs as leaves, times the substeps of a control step: what each
+    part costs a control step's backward pass."""
+    import dataclasses
+
+    import torch
+
+    from backends.mujoco_warp.adjoint import constraints as cons
+    from backends.mujoco_warp.adjoint import dynamics
+    from backends.mujoco_warp.adjoint.integrate import integrate_positions
+    from backends.mujoco_warp.adjoint.step import _constraint_force, _hessian, substep
+
+    tree = sim.tree
+    _, records = sim.adjoint_step(engine, control)
+    q, v, a0 = (t.double() for t in records[len(records) // 2])
+    u = control.double()
+    kin = dynamics.kinematics(tree, q)
+    kin_leaf = dataclasses.replace(kin, **{f.name: _leaf(getattr(kin, f.name)) for f in dataclasses.fields(kin)})
+    mass = dynamics.mass_matrix(tree, kin)
+    rows = cons.constraint_rows(tree, kin, q, v)
+    rows_leaf = dataclasses.replace(rows, **{f.name: _leaf(getattr(rows, f.name)) for f in dataclasses.fields(rows)})
+    smooth = _leaf(sim.applied_force(u, q, v) - tree.damping * v)
+    with torch.no_grad():
+        mass, zones = mass.detach(), cons.zones(rows, a0)
+        hessian = _hessian(mass, rows, a0, zones)
+
+    def solve():
+        m = _leaf(mass)
+        residual = (m @ a0[..., None]).squeeze(-1) - smooth - _constraint_force(rows_leaf, a0, zones)
+        return (a0 - torch.linalg.solve(hessian, residual),)
+
+    def integrate():
+        m, qacc, qv, qq = _leaf(mass), _leaf(a0), _leaf(v), _leaf(q)
+        damped = m + tree.timestep * torch.diag(tree.damping)
+        qvel = qv + tree.timestep * torch.linalg.solve(damped, (m @ qacc[..., None]).squeeze(-1))
+        return integrate_positions(tree, qq, qvel, tree.timestep), qvel
+
+    substeps = len(records)
+    parts = {
+        "kinematics": lambda: tuple(vars(dynamics.kinematics(tree, _leaf(q))).values()),
+        "mass matrix": lambda: (dynamics.mass_matrix(tree, kin_leaf),),
+        "bias forces": lambda: (dynamics.bias_force(tree, kin_leaf, _leaf(v)),),
+        "constraint rows": lambda: tuple(vars(cons.constraint_rows(tree, kin_leaf, _leaf(q), _leaf(v))).values()),
+        "zones and solver Hessian (no gradient)": lambda: (
+            _hessian(mass, rows, a0, cons.zones(rows, a0)).requires_grad_(True),
+        ),
+        "constraint solve": solve,
+        "integrator": integrate,
+        "whole substep": lambda: substep(tree, _leaf(q), _leaf(v), sim.applied_force(u, q, v), a0),
+    }
+    return {name: substeps * _timed(fn, repeats) for name, fn in parts.items()}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", default="ant")
@@ -103,6 +176,11 @@ def main() -> None:
         "mujoco_warp_over_newton": rates["mujoco_warp adjoint"] / rates["newton"],
         "per_round_ratio": ratios,
         "adjoint_window_profile": _profiled_window(sims["mujoco_warp adjoint"], args.horizon, 1),
+        "adjoint_parts_per_control_step_s": _parts_in_isolation(
+            sims["mujoco_warp adjoint"],
+            sims["mujoco_warp adjoint"].state.engine.detach(),
+            task.actions_to_control(torch.zeros(args.num_envs, task.action_dim)),
+        ),
         "load_average": os.getloadavg(),
     }
     print(
