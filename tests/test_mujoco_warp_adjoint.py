@@ -136,6 +136,28 @@ def test_a_tilted_box_on_its_corners_matches_mujocos_transition_derivatives():
     assert np.linalg.norm(jac - reference) / np.linalg.norm(reference) < 1e-5
 
 
+def test_the_go2_on_its_leg_cylinders_matches_mujocos_transition_derivatives():
+    """A tilted Go2 dropped onto its thigh and calf cylinders: their four rim points per cylinder move
+    with the configuration; the one-step Jacobian in contact."""
+    m = accurate_model(build_spec(make_task("go2")).compile())
+    tree = rigid_tree(m)
+    d = mujoco.MjData(m)
+    d.qpos[:] = m.qpos0
+    d.qpos[2] = 0.35
+    d.qpos[3:7] = np.array([0.9, 0.3, 0.3, 0.0]) / np.linalg.norm([0.9, 0.3, 0.3, 0.0])
+    rng = np.random.default_rng(0)
+    for _ in range(400):
+        d.qfrc_applied[6:] = rng.uniform(-3, 3, m.nv - 6)
+        mujoco.mj_step(m, d)
+    mujoco.mj_forward(m, d)
+    cylinder = int(mujoco.mjtGeom.mjGEOM_CYLINDER)
+    assert any(int(m.geom_type[d.contact.geom[i][1]]) == cylinder for i in range(d.ncon))
+    reference = np.zeros((2 * m.nv, 2 * m.nv))
+    mujoco.mjd_transitionFD(m, d, 1e-6, 1, reference, None, None, None)
+    jac = _replay_jacobian(m, tree, d)
+    assert np.linalg.norm(jac - reference) / np.linalg.norm(reference) < 1e-5
+
+
 def _replay_jacobian(m, tree, d) -> np.ndarray:
     """The replay's autograd Jacobian of one step at ``d`` in MuJoCo's tangent coordinates."""
     nv = m.nv
@@ -156,9 +178,9 @@ def _replay_jacobian(m, tree, d) -> np.ndarray:
     return torch.func.jacrev(step)(torch.zeros(2 * nv, dtype=torch.float64)).numpy()
 
 
-@pytest.fixture(scope="module")
-def adjoint(ant):
-    return make("mujoco_warp", ant, num_envs=4, seed=0, gradients="adjoint")
+@pytest.fixture(scope="module", params=["ant", "go2"])
+def adjoint(request):
+    return make("mujoco_warp", make_task(request.param), num_envs=4, seed=0, gradients="adjoint")
 
 
 def _in_contact(sim, task, steps=40):
@@ -172,10 +194,10 @@ def _in_contact(sim, task, steps=40):
 
 
 @pytest.mark.parametrize("where", ["contact", "air"])
-def test_control_step_jacobians_match_float64_central_differences(adjoint, ant, where):
+def test_control_step_jacobians_match_float64_central_differences(adjoint, where):
     """The whole control step (16 substeps, the engine's float32 states) against MuJoCo C float64 central
     differences: far inside finite differences' own error (docs/mujoco-warp.md)."""
-    engine, control = _in_contact(adjoint, ant)
+    engine, control = _in_contact(adjoint, adjoint.task)
     if where == "air":
         engine = engine.clone()
         engine[:, 2] += 1.0
@@ -188,8 +210,9 @@ def test_control_step_jacobians_match_float64_central_differences(adjoint, ant, 
         assert np.linalg.norm(mine - ref) / np.linalg.norm(ref) < 1e-4, i
 
 
-def test_the_backward_pass_is_the_jacobians_vector_product(adjoint, ant):
-    engine, control = _in_contact(adjoint, ant)
+def test_the_backward_pass_is_the_jacobians_vector_product(adjoint):
+    engine, control = _in_contact(adjoint, adjoint.task)
+    layout = adjoint.layout
     weights = torch.randn(engine.shape, generator=torch.Generator().manual_seed(0))
     x = engine.clone().requires_grad_(True)
     u = control.clone().requires_grad_(True)
@@ -199,15 +222,17 @@ def test_the_backward_pass_is_the_jacobians_vector_product(adjoint, ant):
     assert torch.equal(state.engine.detach(), nominal)  # the forward is the engine's own step
     w = weights.double()[:, None]
     assert torch.allclose(grad_control.double(), (w @ jac_control).squeeze(1), rtol=1e-4, atol=1e-6)
-    tangent = adjoint.ambient_to_tangent_grad(engine, grad_engine[:, : ant.layout.nq].double())
+    tangent = adjoint.ambient_to_tangent_grad(engine, grad_engine[:, : layout.nq].double())
     expected = (w @ jac_state).squeeze(1)
-    assert torch.allclose(tangent, expected[:, : ant.layout.nv], rtol=1e-4, atol=1e-6)
-    assert torch.allclose(grad_engine[:, ant.layout.nq :].double(), expected[:, ant.layout.nv :], rtol=1e-4, atol=1e-6)
+    assert torch.allclose(tangent, expected[:, : layout.nv], rtol=1e-4, atol=1e-6)
+    assert torch.allclose(grad_engine[:, layout.nq :].double(), expected[:, layout.nv :], rtol=1e-4, atol=1e-6)
 
 
 def test_what_the_adjoint_does_not_cover_is_refused_at_build_time(ant):
-    with pytest.raises(BackendError, match="gradients=adjoint does not cover contacts of a mjGEOM_CYLINDER geom"):
-        make("mujoco_warp", make_task("go2"), num_envs=1, gradients="adjoint")
+    spec = build_spec(ant)
+    spec.geoms[3].type = mujoco.mjtGeom.mjGEOM_ELLIPSOID
+    with pytest.raises(BackendError, match="gradients=adjoint does not cover contacts of a mjGEOM_ELLIPSOID geom"):
+        rigid_tree(spec.compile())
     with pytest.raises(ValueError, match="soft bodies take gradients=fd"):
         make("mujoco_warp", make_task("soft_jumper"), num_envs=1, gradients="adjoint")
     with pytest.raises(ValueError, match="fd_scheme set the finite differences; gradients=adjoint takes none"):
@@ -228,8 +253,7 @@ def test_the_gradient_mode_is_part_of_a_runs_settings(ant):
 
 
 class TestAdjointContract(ContractSuite):
-    """The contract suite on the Ant with the adjoint's gradients."""
+    """The contract suite on the Ant and the Go2 with the adjoint's gradients."""
 
     backend_names = ("mujoco_warp",)
     backend_options = {"gradients": "adjoint"}
-    task_names = ("ant",)

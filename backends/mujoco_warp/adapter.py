@@ -42,8 +42,9 @@ control step and carried only across its substeps.
 Gradients, option ``gradients``: ``fd``, the default, batched finite differences (below); or ``adjoint``,
 the analytic adjoint of MuJoCo's step (:mod:`backends.mujoco_warp.adjoint`; :class:`_AdjointStep`): the
 forward steps the nominal worlds only, recording each substep's input and converged acceleration, and
-the backward replays each substep in torch at those states. It covers rigid trees of spheres and
-capsules on the plane (the Ant) and refuses every other model when the adapter is built.
+the backward replays each substep in torch at those states. It covers rigid trees of spheres,
+capsules, boxes and cylinders on the plane (the Ant, the Go2) and refuses every other model when the
+adapter is built.
 
 Finite differences (:meth:`MujocoWarpSim.fd_jacobians`, :class:`_MujocoWarpStep`):
 

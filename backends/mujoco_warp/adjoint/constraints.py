@@ -50,14 +50,52 @@ class Rows:
 
 
 def _contact_points(tree: RigidTree, kin: Kinematics) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Every candidate contact point (:func:`~backends.mujoco_warp.adjoint.tree._candidates`) in the
-    world: points (N, C, 3), radii (C,), geom index into ``tree.geoms`` (C,)."""
+    """Every candidate contact point in the world: the geoms' fixed points
+    (:func:`~backends.mujoco_warp.adjoint.tree._candidates`), then four per cylinder
+    (:func:`_cylinder_points`): points (N, C, 3), radii (C,), geom index into ``tree.geoms`` (C,)."""
     g = tree.geoms
     geom = g["candidate_geom"]
     rot = kin.rot[:, g["body"][geom]]  # (N, C, 3, 3) body frames
     centre = kin.origin[:, g["body"][geom]] + (rot @ g["pos"][geom][..., None]).squeeze(-1)
     offset = (g["rot"][geom] @ g["candidate_offset"][..., None]).squeeze(-1)  # in the body frame
-    return centre + (rot @ offset[..., None]).squeeze(-1), g["candidate_radius"], geom
+    points, radii = centre + (rot @ offset[..., None]).squeeze(-1), g["candidate_radius"]
+    if len(g["cylinder_geom"]):
+        rims = _cylinder_points(tree, kin)
+        points = torch.cat((points, rims), dim=1)
+        radii = torch.cat((radii, radii.new_zeros(rims.shape[1])))
+        geom = torch.cat((geom, g["cylinder_geom"].repeat_interleave(4)))
+    return points, radii, geom
+
+
+def _cylinder_points(tree: RigidTree, kin: Kinematics) -> torch.Tensor:
+    """(N, 4 Y, 3) MuJoCo-Warp's four plane-cylinder points per cylinder (``plane_cylinder``): with the
+    axis ``a`` turned towards the plane (``n . a <= 0``, a frozen choice), ``v`` the rim's radius vector
+    nearest the plane (``a (n . a) - n`` scaled to the radius; world x times the radius when the
+    cylinder stands upright, another frozen choice), ``A = h a``: ``c + v + A``, ``c + v - A``, and
+    ``c + A - v / 2 +- w`` with ``w`` along ``v x A`` of length ``r sqrt(3) / 2``. Each is a contact
+    where its height is below zero (radius 0)."""
+    g = tree.geoms
+    geom = g["cylinder_geom"]
+    rot = kin.rot[:, g["body"][geom]] @ g["rot"][geom]  # (N, Y, 3, 3) cylinder frames
+    centre = kin.origin[:, g["body"][geom]] + (kin.rot[:, g["body"][geom]] @ g["pos"][geom][..., None]).squeeze(-1)
+    radius, half = g["cylinder_size"][:, 0, None], g["cylinder_size"][:, 1, None]
+    axis = rot[..., 2]
+    normal = torch.tensor([0.0, 0.0, 1.0], dtype=axis.dtype)
+    axis = axis * torch.where(axis[..., 2:] > 0, -1.0, 1.0).detach()
+    toward = axis * axis[..., 2:] - normal
+    length_sq = (toward * toward).sum(-1, keepdim=True)
+    upright = (length_sq < 1e-12).detach()
+    rim = torch.where(
+        upright,
+        torch.tensor([1.0, 0.0, 0.0], dtype=axis.dtype) * radius,
+        toward * radius / torch.sqrt(length_sq.clamp_min(1e-12)),
+    )
+    cap = axis * half
+    side = torch.linalg.cross(rim, cap, dim=-1)
+    side = side / side.norm(dim=-1, keepdim=True) * (radius * 3.0**0.5 / 2.0)
+    near = centre + cap - 0.5 * rim
+    points = torch.stack((centre + rim + cap, centre + rim - cap, near + side, near - side), dim=2)
+    return points.flatten(1, 2)
 
 
 def _point_jacobian(tree: RigidTree, kin: Kinematics, body: torch.Tensor, point: torch.Tensor) -> torch.Tensor:

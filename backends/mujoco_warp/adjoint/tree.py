@@ -23,6 +23,7 @@ CONTACT_GEOMS = {
     int(mujoco.mjtGeom.mjGEOM_SPHERE): "sphere",
     int(mujoco.mjtGeom.mjGEOM_CAPSULE): "capsule",
     int(mujoco.mjtGeom.mjGEOM_BOX): "box",
+    int(mujoco.mjtGeom.mjGEOM_CYLINDER): "cylinder",
 }
 
 
@@ -189,14 +190,22 @@ def _contact_geoms(m: mujoco.MjModel) -> dict:
         "candidate_geom": torch.tensor(geom_of, dtype=torch.long),  # (C,) into the lists above
         "candidate_offset": _as(offsets).reshape(-1, 3),  # (C, 3) in the geom's frame
         "candidate_radius": _as(radii),  # (C,) dist = height of the point above the plane - radius
+        # cylinders: their four points move over the rim with the configuration (constraints._cylinder_points)
+        "cylinder_geom": torch.tensor([i for i, g in enumerate(touching) if _is_cylinder(m, g)], dtype=torch.long),
+        "cylinder_size": _as([m.geom_size[g][:2] for g in touching if _is_cylinder(m, g)]).reshape(-1, 2),
     }
 
 
+def _is_cylinder(m: mujoco.MjModel, g: int) -> bool:
+    return int(m.geom_type[g]) == mujoco.mjtGeom.mjGEOM_CYLINDER
+
+
 def _candidates(m: mujoco.MjModel, touching: list[int]) -> tuple[list[int], list, list[float]]:
-    """Every point MuJoCo's plane collision can make a contact at, as a fixed point of a geom's frame and
+    """Every point MuJoCo's plane collision can make a contact at that is fixed in a geom's frame, with
     a radius: a sphere's centre (radius r), a capsule's two end centres (``(0, 0, +-half length)``,
-    radius r), a box's eight corners (radius 0). A contact exists where the point's height minus the
-    radius is below zero, at the midpoint of the penetration."""
+    radius r), a box's eight corners (radius 0); a cylinder's points follow its rim instead
+    (``constraints._cylinder_points``). A contact exists where the point's height minus the radius is
+    below zero, at the midpoint of the penetration."""
     geom_of, offsets, radii = [], [], []
     for i, g in enumerate(touching):
         kind, size = int(m.geom_type[g]), m.geom_size[g]
@@ -204,6 +213,8 @@ def _candidates(m: mujoco.MjModel, touching: list[int]) -> tuple[list[int], list
             points, radius = [(0.0, 0.0, 0.0)], size[0]
         elif kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
             points, radius = [(0.0, 0.0, size[1]), (0.0, 0.0, -size[1])], size[0]
+        elif kind == mujoco.mjtGeom.mjGEOM_CYLINDER:
+            continue  # not fixed points: constraints._cylinder_points
         else:  # box
             points = [(x * size[0], y * size[1], z * size[2]) for x in (1, -1) for y in (1, -1) for z in (1, -1)]
             radius = 0.0
