@@ -108,6 +108,9 @@ _SECONDS_PER_ENV_STEP = {
     ("mujoco_warp", "ant"): 4e-2,
     ("mujoco_warp", "go2"): 6e-2,
     ("mujoco_warp", "soft_jumper"): 3e3,
+    # MuJoCo-Warp with its analytic adjoint (gradients=adjoint): results/adjoint/, scaled for the updates
+    ("mujoco_warp", "ant", "adjoint"): 5e-3,
+    ("mujoco_warp", "go2", "adjoint"): 8e-3,
 }
 # Seconds per env step an evaluation counts (every seed's envs for a whole episode, before and after
 # training): the protocol's Ant evaluations; the Go2's scaled by its forward throughput against the Ant's.
@@ -495,6 +498,13 @@ def memory_problem(jobs: list[Job], at_once: int, device: str = "cpu") -> str | 
     return f"{label} needs at least {gib(largest)}{together}; {device} has {gib(have)} free: {advice}"
 
 
+def _seconds_per_env_step(run: RunSpec) -> float:
+    """The first ETA's seconds per training env step of ``run`` (its backend, task and gradient mode)."""
+    mode = ("adjoint",) if dict(run.backend_options).get("gradients") == "adjoint" else ()
+    key = (run.backend, run.task, *mode)
+    return _SECONDS_PER_ENV_STEP.get(key, _SECONDS_PER_ENV_STEP.get(key[:2], 5e-3))
+
+
 def train_job(run: RunSpec, run_dir: Path) -> Job:
     """The job that trains (or resumes) ``run`` in ``run_dir`` and evaluates it: ``bench-run RUN_DIR``. Its
     cost counts the epochs a resumed run has left, not the ones its log already holds."""
@@ -502,7 +512,7 @@ def train_job(run: RunSpec, run_dir: Path) -> Job:
     eval_envs = run.eval_num_envs or 2 * run.num_envs
     eval_steps = 2 * run.eval_seeds * eval_envs * _episode(run.task, run.eval_max_steps)
     left = max(run.epochs - _logged_epochs(run_dir / "metrics.jsonl"), 0) / max(run.epochs, 1)
-    estimate = _STARTUP_S + left * run.env_steps * _SECONDS_PER_ENV_STEP.get((run.backend, run.task), 5e-3)
+    estimate = _STARTUP_S + left * run.env_steps * _seconds_per_env_step(run)
     estimate += eval_steps * _SECONDS_PER_EVAL_STEP.get((run.backend, run.task), 1e-4)
     return Job(
         label=run_dir.name,

@@ -2,7 +2,7 @@
 
 The adjoint (:mod:`backends.mujoco_warp.adjoint`) recomputes one MuJoCo step in torch for a narrow,
 named class of models: a kinematic tree of bodies with one joint each (a free root, hinges below),
-the Euler integrator, soft contacts of spheres and capsules with a ground plane in an elliptic cone
+the Euler integrator, soft contacts of spheres, capsules, boxes and cylinders with a ground plane in an elliptic cone
 (condim 1 or 3), hinge limits, constant impedance, no margin or gap. :func:`rigid_tree` reads that
 model into torch tensors and refuses, in one line naming the first thing it does not cover, every
 model outside the class, so a gradient is never silently missing a term.
