@@ -159,23 +159,27 @@ class PhysicsSpec:
     def __post_init__(self) -> None:
         if isinstance(self.substeps, bool) or not isinstance(self.substeps, int) or self.substeps < 1:
             raise ValueError(f"PhysicsSpec.substeps must be an integer >= 1, got {self.substeps!r}")
-        for name in ("frame_dt",):
-            value = getattr(self, name)
-            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
-                raise ValueError(f"PhysicsSpec.{name} must be a finite number > 0, got {value!r}")
+
+        def number(value) -> bool:  # a bool is an int to Python, never a physical constant here
+            return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+        if not number(self.frame_dt) or self.frame_dt <= 0:
+            raise ValueError(f"PhysicsSpec.frame_dt must be a finite number > 0, got {self.frame_dt!r}")
+        if not isinstance(self.ground_plane, bool):
+            raise ValueError(f"PhysicsSpec.ground_plane must be True or False, got {self.ground_plane!r}")
         for name in ("contact_ke", "contact_kd", "contact_kf", "contact_mu", "joint_limit_ke", "joint_limit_kd"):
             value = getattr(self, name)
-            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
+            if not (number(value) and value >= 0):
                 raise ValueError(f"PhysicsSpec.{name} must be a finite number >= 0, got {value!r}")
         for name in ("joint_damping", "pd_kp", "pd_kd", "gravity"):
             value = getattr(self, name)
-            if not (isinstance(value, int | float) and math.isfinite(value)):
+            if not number(value):
                 raise ValueError(f"PhysicsSpec.{name} must be a finite number, got {value!r}")
-        if self.armature is not None and not (
-            isinstance(self.armature, int | float) and math.isfinite(self.armature) and self.armature >= 0
-        ):
+        if self.armature is not None and not (number(self.armature) and self.armature >= 0):
             raise ValueError(f"PhysicsSpec.armature must be None or a finite number >= 0, got {self.armature!r}")
-        if any(not (math.isfinite(limit) and limit > 0) for limit in self.torque_limits):
+        if not isinstance(self.torque_limits, tuple | list) or any(
+            not (number(limit) and limit > 0) for limit in self.torque_limits
+        ):
             raise ValueError(f"PhysicsSpec.torque_limits must be positive and finite, got {self.torque_limits}")
 
     @property

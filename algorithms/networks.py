@@ -68,6 +68,9 @@ class MLP(nn.Sequential):
         norm_before_activation: bool = False,
         init_gain: float | None = None,
     ):
+        for name, value in (("in_dim", in_dim), ("out_dim", out_dim), *(("a hidden size", h) for h in hidden_sizes)):
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"MLP {name} must be an integer >= 1, got {value!r}")
         layers: list[nn.Module] = []
         width = in_dim
         for size in hidden_sizes:

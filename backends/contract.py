@@ -141,6 +141,9 @@ class BatchedSim(ABC):
                 raise InvalidStateError(f"{name} must be a floating-point torch.Tensor, got {type(value).__name__}")
             if tuple(value.shape) != shape:
                 raise InvalidStateError(f"{name} must have shape {shape}, got {tuple(value.shape)}")
+        bad = nonfinite_rows(torch.cat((joint_q.detach(), joint_qd.detach()), dim=1))
+        if bad:
+            raise InvalidStateError(f"joint_q/joint_qd contain NaN or inf in env(s) {bad[:16]}")
         if layout.num_particles:
             bad = nonfinite_rows(torch.cat((particle_q.detach(), particle_qd.detach()), dim=1))
             if bad:
@@ -311,9 +314,16 @@ class BatchedSim(ABC):
     def state(self, value: SimState) -> None:
         if not isinstance(value, SimState):
             raise InvalidStateError(f"state must be a SimState, got {type(value).__name__}")
+        current = self._state.tensors() if getattr(self, "_state", None) is not None else {}
         for name, tensor in value.tensors().items():
             if tensor.shape[0] != self.num_envs:
                 raise InvalidStateError(f"state.{name} has {tensor.shape[0]} rows for {self.num_envs} envs")
+            mine = current.get(name)
+            if mine is not None and (tuple(tensor.shape[1:]) != tuple(mine.shape[1:]) or tensor.dtype != mine.dtype):
+                raise InvalidStateError(
+                    f"state.{name} has per-env shape {tuple(tensor.shape[1:])} and dtype {tensor.dtype}; this "
+                    f"sim's is {tuple(mine.shape[1:])}, {mine.dtype}"
+                )
         self._state = value
 
     def _initial_state(self) -> SimState:

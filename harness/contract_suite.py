@@ -215,14 +215,10 @@ class ContractSuite:
         task = adapter[1]
         sim = _sim(adapter)
         parts = list(task.sample_initial_state(N, torch.Generator().manual_seed(0)))
-        if task.layout.num_particles:  # state_from_generalized refuses non-finite particles: poison the engine row
-            state = sim.state_from_generalized(*parts)
-            engine = state.engine.clone()
-            engine[1, -1] = float("inf")
-            sim.state = dataclasses.replace(state, engine=engine)
-        else:
-            parts[1][1] = float("inf")
-            sim.state = sim.state_from_generalized(*parts)
+        state = sim.state_from_generalized(*parts)  # which refuses non-finite coordinates: poison the engine row
+        engine = state.engine.clone()
+        engine[1, -1] = float("inf")
+        sim.state = dataclasses.replace(state, engine=engine)
         with pytest.raises(NonFiniteStateError) as info, torch.no_grad():
             sim.step(torch.zeros(N, task.action_dim))
         assert info.value.env_ids == [1]

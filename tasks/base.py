@@ -63,6 +63,10 @@ class Task(ABC):
 
     def __init__(self, physics: PhysicsSpec | None = None, preset: str | None = None):
         self.preset = preset or self.default_preset
+        limits = physics.torque_limits if physics is not None else ()
+        if limits and len(limits) != self.layout.num_dofs:
+            count, joints = len(limits), self.layout.num_dofs
+            raise ValueError(f"PhysicsSpec.torque_limits has {count} limits; task {self.name!r} has {joints} joints")
         if not self.presets:
             if preset:
                 raise UnknownPresetError(f"task {self.name!r} has no physics presets; got {preset!r}")

@@ -44,7 +44,18 @@ class TaskEnv:
         self.prev_actions = torch.zeros(self.num_envs, task.action_dim, device=self.device)
         self.steps = torch.zeros(self.num_envs, dtype=torch.long, device=self.device)
         self.returns = torch.zeros(self.num_envs, device=self.device)
-        self.obs = self.task.observe(sim.state, self.prev_actions)
+        self.obs = self._observe()
+
+    def _observe(self) -> torch.Tensor:
+        """The task's observation of the current state, refused unless it is (N, obs_dim): a task whose
+        ``observe`` disagrees with its declared width would feed the networks the wrong inputs."""
+        obs = self.task.observe(self.sim.state, self.prev_actions)
+        if tuple(obs.shape) != (self.num_envs, self.obs_dim):
+            raise ValueError(
+                f"task {self.task.name!r} observed shape {tuple(obs.shape)}; it declares obs_dim {self.obs_dim} "
+                f"for {self.num_envs} envs"
+            )
+        return obs
 
     def state_dict(self) -> dict:
         """Everything needed to continue the episodes exactly (for checkpoints)."""
@@ -73,7 +84,7 @@ class TaskEnv:
         self.prev_actions = torch.zeros_like(self.prev_actions)
         self.steps.zero_()
         self.returns.zero_()
-        self.obs = self.task.observe(self.sim.state, self.prev_actions)
+        self.obs = self._observe()
         return self.obs
 
     def cut_graph(self) -> torch.Tensor:

@@ -3,6 +3,7 @@ what is wrong and what is valid, no traceback, and nothing written or overwritte
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 from pathlib import Path
 
@@ -414,19 +415,54 @@ API_CASES = [
     ("non-integer num_envs", lambda: _sim(num_envs=2.5), ValueError, "num_envs must be an integer >= 1"),
     ("zero num_envs", lambda: _sim(num_envs=0), ValueError, "num_envs"),
     ("zero graph depth", lambda: _sim(max_graph_steps=0), ValueError, "max_graph_steps"),
+    ("a bool time step", lambda: PhysicsSpec(frame_dt=True), ValueError, "frame_dt must be a finite number > 0"),
+    ("a string ground plane", lambda: PhysicsSpec(ground_plane="no"), ValueError, "ground_plane must be True or False"),
+    (
+        "torque limits for another robot's joints",
+        lambda: make_task("ant", physics=PhysicsSpec(torque_limits=(1.0,) * 12)),
+        ValueError,
+        "has 12 limits; task 'ant' has 8 joints",
+    ),
+    ("an actor with no inputs", lambda: _actor(obs_dim=0), ValueError, "in_dim must be an integer >= 1"),
+    ("an empty hidden layer", lambda: _actor(hidden_sizes=(64, 0)), ValueError, "a hidden size must be"),
+    ("a task observing fewer columns", lambda: _short_sighted_env(), ValueError, "declares obs_dim 37"),
 ]
+
+
+def _actor(obs_dim=4, hidden_sizes=(64,)):
+    from algorithms.networks import GaussianActor
+
+    return GaussianActor(obs_dim, 2, hidden_sizes)
+
+
+def _short_sighted_env():
+    """A TaskEnv over a task whose observe() returns one column fewer than its obs_dim."""
+    from tasks.env import TaskEnv
+
+    task = make_task("ant")
+    observe = task.observe
+    task.observe = lambda state, prev: observe(state, prev)[:, :-1]
+    return TaskEnv(task, make("newton", task, num_envs=2))
 
 
 def _state_cases(sim):
     q, qd = sim.task.sample_initial_state(2, torch.Generator().manual_seed(0))
     zero = q.clone()
     zero[1, 3:7] = 0.0
+    nan = qd.clone()
+    nan[1, 0] = float("nan")
+
+    def narrow(state):
+        return dataclasses.replace(state, engine=state.engine[:, :-1])
+
     return [
         ("joint_q of the wrong width", lambda: sim.state_from_generalized(q[:, :5], qd), "joint_q must have shape"),
         ("joint_qd of the wrong rows", lambda: sim.state_from_generalized(q, qd[:1]), "joint_qd must have shape"),
         ("integer joint_q", lambda: sim.state_from_generalized(q.long(), qd), "floating-point"),
         ("zero quaternion", lambda: sim.state_from_generalized(zero, qd), "zero length in env(s) [1]"),
         ("state of the wrong rows", lambda: setattr(sim, "state", sim.state.map(lambda t: t[:1])), "rows for 2 envs"),
+        ("NaN joint velocities", lambda: sim.state_from_generalized(q, nan), "NaN or inf in env(s) [1]"),
+        ("a state of another width", lambda: setattr(sim, "state", narrow(sim.state)), "per-env shape"),
     ]
 
 

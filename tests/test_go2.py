@@ -271,10 +271,15 @@ def test_a_nan_target_is_refused_before_the_engine(backend, go2):
 
 
 def test_a_bad_torque_limit_count_is_refused(go2):
+    """By the task when it is built; the adapters refuse it too for a task that reaches them anyway."""
     physics = dataclasses.replace(go2.physics, torque_limits=(23.7,) * 11)
+    with pytest.raises(ValueError, match="torque_limits has 11 limits; task 'go2' has 12 joints"):
+        Go2(physics)
+    task = Go2()
+    task.physics = physics
     for backend in BACKENDS:
         with pytest.raises(BackendError, match="11 torque limits for 12 joints of task 'go2'"):
-            make(backend, Go2(physics), num_envs=1)
+            make(backend, task, num_envs=1)
 
 
 def test_physics_spec_refuses_a_negative_armature():

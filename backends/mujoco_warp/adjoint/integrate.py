@@ -8,25 +8,17 @@ import mujoco
 import torch
 
 from backends.mujoco_warp.adjoint.tree import RigidTree
+from simcore import quat_mul, wxyz_to_xyzw, xyzw_to_wxyz
 
 
 def quat_mul_wxyz(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
-    """Hamilton product of (..., 4) quaternions in MuJoCo's w, x, y, z order."""
-    aw, ax, ay, az = a.unbind(-1)
-    bw, bx, by, bz = b.unbind(-1)
-    return torch.stack(
-        (
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ),
-        dim=-1,
-    )
+    """Hamilton product of (..., 4) quaternions in MuJoCo's w, x, y, z order (:func:`simcore.quat_mul`'s)."""
+    return xyzw_to_wxyz(quat_mul(wxyz_to_xyzw(a), wxyz_to_xyzw(b)))
 
 
 def rotation_quat(rotvec: torch.Tensor) -> torch.Tensor:
-    """w, x, y, z quaternions of rotation vectors (..., 3); smooth through zero (sin(t/2)/t by its series)."""
+    """w, x, y, z quaternions of rotation vectors (..., 3); smooth through zero (sin(t/2)/t by its series),
+    where :func:`simcore.quat_from_rotation_vector`'s gradient is not: the adjoint differentiates at zero."""
     angle_sq = (rotvec * rotvec).sum(-1, keepdim=True)
     angle = torch.sqrt(angle_sq.clamp_min(1e-30))
     small = angle_sq < 1e-8
