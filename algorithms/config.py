@@ -169,7 +169,11 @@ def _problems(cfg: AlgoConfig) -> list[str]:
     need(0.0 <= cfg.min_lr <= min(cfg.actor_lr, cfg.critic_lr), "min_lr must be in [0, min(actor_lr, critic_lr)]")
     for name in ("betas", "lambda_betas"):
         need(all(0.0 <= b < 1.0 for b in getattr(cfg, name)), f"{name} must lie in [0, 1), got {getattr(cfg, name)}")
-    need(cfg.critic_iterations >= 0, "critic_iterations (m_critic) must be >= 0")
+    need(cfg.critic_iterations >= 1, "critic_iterations (m_critic) must be >= 1 (0 never trains the critic)")
+    # a tanh-squashed action's entropy per dimension is at most ln 2 (uniform on [-1, 1]); far below, the
+    # target asks for a standard deviation float32 cannot hold
+    target = cfg.target_entropy_per_dim
+    need(-50.0 <= target < math.log(2.0), f"target_entropy_per_dim must be in [-50, ln 2), got {target}")
     need(cfg.critic_minibatches >= 1 and cfg.lambda_batches >= 1, "critic_minibatches and lambda_batches must be >= 1")
     need(cfg.max_epochs >= 0, "max_epochs must be >= 0")
     m = cfg.lambda_iterations

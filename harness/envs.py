@@ -41,8 +41,12 @@ def device_problem(device: str) -> str | None:
         return f"unknown device {device!r}; use cpu or cuda[:N]"
     if parsed.type not in ("cpu", "cuda"):
         return f"device {device!r} is not supported; use cpu or cuda[:N]"
+    if parsed.type == "cpu" and parsed.index not in (None, 0):
+        return f"device {device!r}: the CPU is one device here (its cores are used by processes); use cpu"
     if parsed.type == "cuda" and not torch.cuda.is_available():
         return f"device {device!r}: this machine has no CUDA device; use cpu"
+    if parsed.type == "cuda" and (parsed.index or 0) >= torch.cuda.device_count():
+        return f"device {device!r}: this machine has {torch.cuda.device_count()} CUDA device(s)"
     return None
 
 

@@ -43,6 +43,14 @@ CLI_CASES = [
     ("empty preset to train", [*TRAIN, "--preset", "", "--out", "new_run"], None, "expected a non-empty value"),
     ("empty fd-schemes output", ["fd-schemes", "--task", "ant", "--out", ""], None, "expected a non-empty value"),
     ("newline in an output name", [*TRAIN, "--out", "a\nb"], None, "expected one line"),
+    ("no critic iterations", [*TRAIN, "--critic-iterations", "0", "--out", "new_run"], None, "critic_iterations"),
+    (
+        "an unreachable entropy target",
+        [*[("sapo" if a == "shac" else a) for a in TRAIN], "--target-entropy-per-dim", "1e300", "--out", "new_run"],
+        None,
+        "target_entropy_per_dim must be in [-50, ln 2)",
+    ),
+    ("a second CPU", [*TRAIN, "--device", "cpu:1", "--out", "new_run"], None, "the CPU is one device here"),
     (
         "parity: a billion episode seeds",
         ["parity", "--task", "ant", "--episode-seeds", "1000000000"],
