@@ -4,8 +4,9 @@ Rows (MuJoCo-Warp 4.0's ``constraint.py``, for the class :mod:`.tree` admits):
 
 * a hinge limit: ``pos = min(q - low, high - q)``, active where ``pos < 0``, ``J = +-e_dof`` (+ at the
   lower limit), a quadratic row when ``jar = J a - aref < 0``, else satisfied;
-* a contact of a sphere (or each end of a capsule) with the z-up plane: ``dist = z_centre - r``,
-  active where ``dist < 0``, at the midpoint ``p = c - (r + dist / 2) n``; condim 3 gives a normal row
+* a contact with the z-up plane at each candidate point MuJoCo's collision makes (a sphere's centre, a
+  capsule's end centres, a box's corners, a cylinder's rim points): ``dist = z_point - r``, active
+  where ``dist < 0``, at the midpoint ``p = c - (r + dist / 2) n``; condim 3 gives a normal row
   and two tangent rows, each the contact frame's axis times the robot body's point Jacobian at ``p``
   (the plane is MuJoCo's geom1, its body the world). The tangent axes are any orthonormal pair: with one
   friction coefficient for both (the models here) every quantity below is invariant to their rotation.
@@ -164,22 +165,31 @@ def _cone(rows: Rows, jar: torch.Tensor):
     return normal, u, t, normal - mu * t, zone
 
 
+def _limit_jar(rows: Rows, qacc: torch.Tensor) -> torch.Tensor:
+    """``J a - aref`` of every limit row (N, L)."""
+    return (rows.limit_jac @ qacc[..., None]).squeeze(-1) - rows.limit_aref
+
+
+def _contact_jar(rows: Rows, qacc: torch.Tensor) -> torch.Tensor:
+    """``J a - aref`` of every contact row (N, C, k)."""
+    return (rows.contact_jac @ qacc[:, None, :, None]).squeeze(-1) - rows.contact_aref
+
+
 def zones(rows: Rows, qacc: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Each limit's (N, L) and contact's (N, C) zone at the solver's acceleration ``qacc`` (N, nv)."""
-    limit_jar = (rows.limit_jac @ qacc[..., None]).squeeze(-1) - rows.limit_aref
+    limit_jar = _limit_jar(rows, qacc)
     limit_zone = torch.where((limit_jar < 0) & (rows.limit_d > 0), QUADRATIC, SATISFIED)
+    jar = _contact_jar(rows, qacc)
     if rows.contact_jac.shape[2] == 1:
-        jar = (rows.contact_jac @ qacc[:, None, :, None]).squeeze(-1) - rows.contact_aref
         return limit_zone, torch.where((jar[..., 0] < 0) & (rows.contact_d[..., 0] > 0), QUADRATIC, SATISFIED)
-    jar = (rows.contact_jac @ qacc[:, None, :, None]).squeeze(-1) - rows.contact_aref
     return limit_zone, _cone(rows, jar)[-1]
 
 
 def forces(rows: Rows, qacc: torch.Tensor, limit_zone: torch.Tensor, contact_zone: torch.Tensor):
     """Row forces ``f = -d cost / d jar`` at ``qacc`` with the zones frozen: limits (N, L), contacts (N, C, k)."""
-    limit_jar = (rows.limit_jac @ qacc[..., None]).squeeze(-1) - rows.limit_aref
+    limit_jar = _limit_jar(rows, qacc)
     limit_f = -(limit_zone == QUADRATIC).to(qacc.dtype) * rows.limit_d * limit_jar
-    jar = (rows.contact_jac @ qacc[:, None, :, None]).squeeze(-1) - rows.contact_aref
+    jar = _contact_jar(rows, qacc)
     quadratic = -rows.contact_d * jar * (contact_zone == QUADRATIC)[..., None]
     if jar.shape[-1] == 1:
         return limit_f, quadratic
@@ -197,7 +207,7 @@ def hessian_blocks(rows: Rows, qacc: torch.Tensor, contact_zone: torch.Tensor) -
     blocks = torch.diag_embed(rows.contact_d) * (contact_zone == QUADRATIC)[..., None, None]
     if k == 1:
         return blocks
-    jar = (rows.contact_jac @ qacc[:, None, :, None]).squeeze(-1) - rows.contact_aref
+    jar = _contact_jar(rows, qacc)
     mu = rows.mu
     normal, u, t, _, _ = _cone(rows, jar)
     dm = rows.contact_d[..., 0] / (mu**2 * (1 + mu**2))

@@ -35,9 +35,6 @@ class RigidTree:
     nv: int
     nbody: int  # bodies including the world (index 0)
     parent: list[int]  # (nbody,) parent body of each body
-    order: list[int]  # bodies 1.. in an order where every parent comes first
-    body_pos: torch.Tensor  # (nbody, 3) body origin in the parent frame
-    body_rot: torch.Tensor  # (nbody, 3, 3) body frame in the parent frame
     ipos: torch.Tensor  # (nbody, 3) centre of mass in the body frame
     irot: torch.Tensor  # (nbody, 3, 3) principal inertia frame in the body frame
     mass: torch.Tensor  # (nbody,)
@@ -45,9 +42,6 @@ class RigidTree:
     joint_type: list[int]  # (nbody,) -1 for none (the world), else mjtJoint
     qposadr: list[int]
     dofadr: list[int]
-    jnt_pos: torch.Tensor  # (nbody, 3) joint anchor in the body frame
-    jnt_axis: torch.Tensor  # (nbody, 3) hinge axis in the body frame
-    qpos0: torch.Tensor  # (nq,)
     ancestor: torch.Tensor  # (nbody, nv) 1 where dof j moves body b
     subtree: torch.Tensor  # (nbody, nbody) 1 where body d is body b or below it
     dof_moves: torch.Tensor  # (nv, nv) bool, dof j moves the body of dof k
@@ -229,7 +223,6 @@ def rigid_tree(m: mujoco.MjModel) -> RigidTree:
     _check_options(m)
     joint_type, qposadr, dofadr = _joints(m)
     parent = [int(p) for p in m.body_parentid]
-    order = sorted(range(1, m.nbody), key=lambda b: _depth(parent, b))
     ancestor = torch.zeros(m.nbody, m.nv, dtype=torch.float64)
     for b in range(1, m.nbody):
         a = b
@@ -268,9 +261,6 @@ def rigid_tree(m: mujoco.MjModel) -> RigidTree:
         nv=m.nv,
         nbody=m.nbody,
         parent=parent,
-        order=order,
-        body_pos=_as(m.body_pos),
-        body_rot=_as(_mat(m.body_quat)),
         ipos=_as(m.body_ipos),
         irot=_as(_mat(m.body_iquat)),
         mass=_as(m.body_mass),
@@ -278,9 +268,6 @@ def rigid_tree(m: mujoco.MjModel) -> RigidTree:
         joint_type=joint_type,
         qposadr=qposadr,
         dofadr=dofadr,
-        jnt_pos=_as([m.jnt_pos[m.body_jntadr[b]] if b else np.zeros(3) for b in range(m.nbody)]),
-        jnt_axis=_as([m.jnt_axis[m.body_jntadr[b]] if b else np.zeros(3) for b in range(m.nbody)]),
-        qpos0=_as(m.qpos0),
         ancestor=ancestor,
         subtree=subtree,
         dof_moves=ancestor[dof_body].T > 0,
