@@ -17,7 +17,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Literal, get_args, get_type_hints
 
-_REMOVED_FIELDS = {"extra"}  # in config.json files of older runs; never read
+REMOVED_HYPERPARAMETERS = frozenset({"extra"})  # in config.json files of older runs; never read
 
 #: the six algorithms, declared once: a family (SHAC, SAPO) and its actor return (h-step, TD-lambda
 #: with a fixed lambda, TD-lambda with an adaptive one)
@@ -109,7 +109,7 @@ class AlgoConfig:
     def from_dict(cls, data: dict) -> AlgoConfig:
         """Inverse of :meth:`as_dict` after a JSON round trip (lists back to tuples)."""
         known = {f.name for f in dataclasses.fields(cls)}
-        data = {k: v for k, v in data.items() if k not in _REMOVED_FIELDS}
+        data = {k: v for k, v in data.items() if k not in REMOVED_HYPERPARAMETERS}
         unknown = sorted(set(data) - known)
         if unknown:
             raise ValueError(f"unknown hyperparameter(s): {', '.join(unknown)}")

@@ -57,6 +57,28 @@ class BackendError(RuntimeError):
     """Base class for errors raised by the backend layer."""
 
 
+def option_number(
+    options: dict, name: str, default, backend: str, low: float = 0.0, high: float | None = None, integer: bool = False
+):
+    """A numeric adapter option: ``options[name]`` if given, else ``default``; refused in one line
+    (:class:`BackendError`) unless it is a finite number (an integer where ``integer``) in
+    [``low``, ``high``] (``high`` None: up to 2**31 - 1 for an integer, any finite value otherwise).
+    NaN, infinities, text, booleans and fractions where a count is meant are refused, never rounded."""
+    import math
+
+    value = options.get(name, default)
+    kind = "an integer" if integer else "a number"
+    top = (2**31 - 1 if integer else math.inf) if high is None else high
+    ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+    if ok and integer:
+        ok = float(value).is_integer()
+    if not ok or not low <= value <= top:
+        shown = (lambda x: f"{int(x):,}") if integer else (lambda x: f"{x:g}")
+        span = f"in [{shown(low)}, {shown(top)}]" if math.isfinite(top) else f">= {shown(low)}"
+        raise BackendError(f"{backend} option {name} must be {kind} {span}, got {value!r}")
+    return int(value) if integer else float(value)
+
+
 #: how a :meth:`BatchedSim.physics_mapping` entry says that a field cannot act on this task
 INERT = "inert: "
 

@@ -1,9 +1,10 @@
 """``python -m harness``: the command line, with signals handled from the first line on.
 
 Until a verb takes over SIGINT/SIGTERM (a training loop, to finish its epoch and checkpoint; ``bench-run``,
-to release its run's claim), a signal ends the process at once with one line and exit code 128 +
-signal: nothing is half-written then, because every file this program writes outside an epoch is
-replaced atomically.
+to release its run's claim), a signal stops the process with one line and exit code 128 + signal. It
+stops by an exception raised where the program is, so every writer's cleanup runs on the way out: a
+temporary file is removed and a report's staged set discarded, while every file already in place was
+replaced whole.
 """
 
 import os
@@ -11,20 +12,30 @@ import signal
 import sys
 
 
+class _Stopped(BaseException):
+    """A signal arrived: unwinds past every ``except Exception`` to the line below, through the finally
+    blocks and context managers that clean up after the writers."""
+
+
 def _stop_now(signum, frame):
-    sys.stderr.write(f"stopped: {signal.Signals(signum).name}\n")
-    sys.stderr.flush()
-    os._exit(128 + signum)
+    raise _Stopped(signum)
 
 
 for _signum in (signal.SIGINT, signal.SIGTERM):
     signal.signal(_signum, _stop_now)
 
-from harness.cli import main  # noqa: E402  (after the handlers: imports take seconds)
-
 try:
+    from harness.cli import main  # after the handlers: imports take seconds
+
     _code = main()
     sys.stdout.flush()
+except _Stopped as stop:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the line below is the last word
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    sys.stderr.write(f"stopped: {signal.Signals(stop.args[0]).name}\n")
+    sys.stderr.flush()
+    sys.stdout.flush()
+    os._exit(128 + stop.args[0])  # the cleanup ran while unwinding; no thread left behind may hold the exit
 except BrokenPipeError:
     # the reader left (`python -m harness list | head`): end quietly, as a pipeline's writer does, with
     # stdout pointed at /dev/null so that the interpreter's own final flush cannot fail again

@@ -67,35 +67,21 @@ import sys
 import tomllib
 from pathlib import Path
 
+from harness.check_kinds import KINDS
 from harness.peers import PEERS
 from harness.results import RunError
+from harness.run_folder import (
+    CHECKPOINT,
+    CONFIG,
+    EVALUATION,
+    JOB,
+    LANDSCAPE,
+    METRICS,
+    ON_ENGINE,
+    STEP_GAIN,
+)
 
 PROFILES_DIR = Path(__file__).resolve().parent / "profiles"
-CHECK_KINDS = (
-    "gradcheck",
-    "throughput",
-    "crosscheck",
-    "parity",
-    "contact-jacobians",
-    "grad-paths",
-    "scaling",
-    "fd-schemes",
-    "solver-probe",
-    "peer",
-)
-MULTI_BACKEND_KINDS = ("crosscheck", "parity")  # one job over all of a block's backends
-# checks whose result depends on how an adapter computes gradients (their address includes it)
-GRADIENT_CHECK_KINDS = (
-    "gradcheck",
-    "throughput",
-    "crosscheck",
-    "contact-jacobians",
-    "grad-paths",
-    "scaling",
-    "fd-schemes",
-)
-#: kinds measured on one backend only (the verb's own)
-ONLY_BACKEND = {"fd-schemes": "mujoco_warp"}
 
 # Seconds per env step of a training epoch (simulation with gradients and the updates) on this 2-core
 # CPU, from the runs in results/ (docs/cluster.md); the Newton Go2's at 64 envs from its throughput
@@ -121,18 +107,6 @@ _SECONDS_PER_EVAL_STEP = {
     ("mujoco_warp", "ant"): 5e-3,
     ("mujoco_warp", "go2"): 6e-3,
     ("mujoco_warp", "soft_jumper"): 1.0,
-}
-_CHECK_SECONDS = {
-    "gradcheck": 40.0,
-    "throughput": 60.0,
-    "crosscheck": 60.0,
-    "parity": 120.0,
-    "contact-jacobians": 300.0,
-    "grad-paths": 120.0,
-    "scaling": 300.0,
-    "fd-schemes": 150.0,
-    "solver-probe": 120.0,
-    "peer": 120.0,
 }
 _STARTUP_S = 12.0  # a job's process start, imports and model build (Warp kernels cached)
 
@@ -206,7 +180,7 @@ def _preset_suffix(args: list[str]) -> str:
 def _check_physics(args: list[str]) -> tuple[str | None, dict]:
     """The preset and adapter options a check's arguments name (``--preset P``, ``--backend-option
     K=V``): its gradients are made with them, so its address carries their gradient settings."""
-    from harness.cli.parser import parse_option, physics_words
+    from harness.words import parse_option, physics_words
 
     preset, options = physics_words(args)
     return preset, dict(parse_option(text) for text in options)
@@ -396,7 +370,9 @@ class Job:
     def is_done(self) -> bool:
         if not self.output.is_file():
             return False
-        if self.kind == "train" and not _training_complete(self.run_dir, self.run.epochs):
+        if self.kind == "train" and (
+            damage(self.run_dir) is not None or not _training_complete(self.run_dir, self.run.epochs)
+        ):
             return False
         if self.output.suffix == ".jsonl":  # a run without evaluation: training complete is done
             return True
@@ -404,18 +380,34 @@ class Job:
             payload = json.loads(self.output.read_text())
         except (OSError, ValueError):
             return False
+        if not isinstance(payload, dict):  # whole JSON, but not a result
+            return False
         if self.kind == "gradcheck" and not payload.get("result", {}).get("passed"):
             return False  # a failed check is run (and reported) again, never reused as if it passed
         return all(payload.get(k) == v for k, v in self.expect.items())
+
+
+def damage(run_dir: Path) -> str | None:
+    """Why the run folder's config.json cannot be used (torn, not JSON, a field out of range), or None
+    where it reads or does not exist yet."""
+    from harness.run_folder import read_config
+
+    if not (run_dir / CONFIG).exists():
+        return None
+    try:
+        read_config(run_dir)
+    except RunError as exc:
+        return str(exc).removesuffix("; start the run again in a new --out")
+    return None
 
 
 def _training_complete(run_dir: Path, epochs: int) -> bool:
     """True when the run's last checkpoint is at its planned epoch count (a torn run resumes instead),
     or, for a run whose checkpoints were not kept (the store's files in git), when its metrics log every
     planned epoch: finished, though analyses that need the final policy cannot run on it again."""
-    ckpt = run_dir / "checkpoint.pt"
+    ckpt = run_dir / CHECKPOINT
     if not ckpt.is_file():
-        return _logged_epochs(run_dir / "metrics.jsonl") >= epochs
+        return _logged_epochs(run_dir / METRICS) >= epochs
     import torch
 
     try:
@@ -453,9 +445,9 @@ def _distinct_labels(checks: list[Job], args: list[list[str]]) -> None:
 
 def _check_targets(kind: str, backend_names: list[str], task: str) -> list[tuple[str, list[str]]]:
     """(label backend, the verb's words naming what it checks) of each job of a check block's task."""
-    if kind in MULTI_BACKEND_KINDS:
+    if KINDS[kind].targets == "backends":
         return [("-".join(backend_names), ["--task", task, "--backends", *backend_names])]
-    if kind in ("fd-schemes", "peer"):  # one simulator each: the words name the task only
+    if KINDS[kind].targets == "simulator":  # the words name the task only
         return [(b, ["--task", task]) for b in backend_names]
     return [(b, ["--backend", b, "--task", task]) for b in backend_names]
 
@@ -511,14 +503,14 @@ def train_job(run: RunSpec, run_dir: Path) -> Job:
     # initial and final policy, every seed, at most one episode each
     eval_envs = run.eval_num_envs or 2 * run.num_envs
     eval_steps = 2 * run.eval_seeds * eval_envs * _episode(run.task, run.eval_max_steps)
-    left = max(run.epochs - _logged_epochs(run_dir / "metrics.jsonl"), 0) / max(run.epochs, 1)
+    left = max(run.epochs - _logged_epochs(run_dir / METRICS), 0) / max(run.epochs, 1)
     estimate = _STARTUP_S + left * run.env_steps * _seconds_per_env_step(run)
     estimate += eval_steps * _SECONDS_PER_EVAL_STEP.get((run.backend, run.task), 1e-4)
     return Job(
         label=run_dir.name,
         kind="train",
         argv=_harness("bench-run", run_dir),
-        output=run_dir / ("eval.json" if run.eval_seeds else "metrics.jsonl"),
+        output=run_dir / (EVALUATION if run.eval_seeds else METRICS),
         estimate_s=estimate,
         cost_key=("train", run.backend, run.task),
         run=run,
@@ -556,7 +548,7 @@ def _resolved(run: RunSpec, runs_dir: Path) -> Job:
 
 def _started(job: Job) -> bool:
     """Whether a run's folder holds anything of it: finished, in flight, or stopped and resumable."""
-    return job.is_done() or any((job.run_dir / name).is_file() for name in ("job.json", "config.json", "metrics.jsonl"))
+    return job.is_done() or any((job.run_dir / name).is_file() for name in (JOB, CONFIG, METRICS))
 
 
 def _design_key(run: RunSpec) -> tuple:
@@ -593,7 +585,7 @@ def _sequential_design(data: dict, blocks: list[list[tuple[int, RunSpec]]], runs
                 jobs[run.key] = _resolved(run, runs_dir)
     records = {}  # run key -> RunRecord of an evaluated run
     for key, job in jobs.items():
-        if (job.run_dir / "eval.json").is_file() and (record := load_run(job.run_dir)) is not None:
+        if (job.run_dir / EVALUATION).is_file() and (record := load_run(job.run_dir)) is not None:
             if record.evaluation is not None:
                 records[key] = record
     designs: dict[tuple, tuple] = {}  # hyperparameters -> (seeds wanted by group, the claims table or None)
@@ -665,22 +657,34 @@ def plan(data: dict, store: Path, stream=None) -> list[Job]:
     import tasks
     from algorithms.config import ALGORITHMS
 
+    stream = stream or sys.stdout  # the stdout of now, not of import time
     known = {"backends": backends.available(), "tasks": tasks.available(), "algos": list(ALGORITHMS)}
     check_spec(data, "spec")
-    suite = data["suite"]
-    device = suite.get("device", "cpu")
-    jobs: list[Job] = []
-
+    device = data["suite"].get("device", "cpu")
     blocks = _train_blocks(data, device, known)
     keep = None
     if any(block.get("sequential") for block in data.get("train", [])):
         keep, lines = _sequential_design(data, blocks, store / "runs")
         for line in lines:
-            print(line, file=stream or sys.stdout, flush=True)
+            print(line, file=stream, flush=True)
     runs = _train_grid(data, blocks, keep)
-    for run in runs:
-        jobs.append(_resolved(run, store / "runs"))
+    trains = [_resolved(run, store / "runs") for run in runs]
+    checks = _check_jobs(data, store, device, known)
+    if data["suite"].get("order", "seed") == "block":
+        jobs = trains + checks
+    else:
+        first_seed = min((r.seed for r in runs), default=0)
+        first = [j for j in trains if j.run.seed == first_seed]
+        jobs = first + checks + [j for j in trains if j.run.seed != first_seed]
+    analyses = _Analyses([j for j in jobs if j.kind == "train"], stream)
+    return (
+        jobs + analyses.sim_to_sim(data) + analyses.landscape(data) + analyses.step_gain(data) + analyses.render(data)
+    )
 
+
+def _check_jobs(data: dict, store: Path, device: str, known: dict) -> list[Job]:
+    """One job per check block x task x target (:data:`harness.check_kinds.KINDS`), labelled apart."""
+    jobs: list[Job] = []
     check_args: list[list[str]] = []  # each check job's extra words, in order
     for i, block in enumerate(data.get("check", [])):
         where = f"[[check]] #{i + 1}"
@@ -691,17 +695,18 @@ def plan(data: dict, store: Path, stream=None) -> list[Job]:
                 _known(b, list(PEERS), "peer", where)
             else:
                 _known(b, known["backends"], "backend", where)
-            if kind in ONLY_BACKEND and b != ONLY_BACKEND[kind]:
-                raise RunError(f"{where}: {kind} measures {ONLY_BACKEND[kind]} only, not {b!r}")
+            only = KINDS[kind].only_backend
+            if only is not None and b != only:
+                raise RunError(f"{where}: {kind} measures {only} only, not {b!r}")
         for task in _names(block.get("tasks", []), f"{where} tasks"):
             args = [str(a) for a in block.get("args", []) + block.get("per_task", {}).get(task, {}).get("args", [])]
             for label_backend, words in _check_targets(kind, blist, task):
-                differentiates = kind in GRADIENT_CHECK_KINDS
+                differentiates = KINDS[kind].differentiates
                 preset, options = _check_physics(args)
                 gradients = gradient_identity(label_backend.split("-"), task, preset, options) if differentiates else {}
                 key = _hash([kind, *words, *args, device, physics_identity(task)] + ([gradients] if gradients else []))
                 out = store / "checks" / f"{kind}_{task}_{label_backend}_{key}.json"
-                if kind not in MULTI_BACKEND_KINDS + ("fd-schemes", "solver-probe", "peer"):  # these run on the CPU
+                if KINDS[kind].takes_device:
                     words = [*words, "--device", device]
                 check_args.append(args)
                 jobs.append(
@@ -710,24 +715,23 @@ def plan(data: dict, store: Path, stream=None) -> list[Job]:
                         kind=kind,
                         argv=_harness(kind, *words, *args, "--out", out),
                         output=out,
-                        estimate_s=_STARTUP_S + _CHECK_SECONDS[kind] * (5.0 if "mujoco_warp" in label_backend else 1.0),
+                        estimate_s=_STARTUP_S + KINDS[kind].seconds * (5.0 if "mujoco_warp" in label_backend else 1.0),
                         cost_key=(kind, label_backend, task),
                     )
                 )
 
-    first_seed = min((r.seed for r in runs), default=0)
-    trains = [j for j in jobs if j.kind == "train"]
-    checks = [j for j in jobs if j.kind in CHECK_KINDS]
-    _distinct_labels(checks, check_args)
-    if data["suite"].get("order", "seed") == "block":
-        jobs = trains + checks
-    else:
-        first = [j for j in trains if j.run.seed == first_seed]
-        jobs = first + checks + [j for j in trains if j.run.seed != first_seed]
+    _distinct_labels(jobs, check_args)
+    return jobs
 
-    train_jobs = [j for j in jobs if j.kind == "train"]
 
-    def select(block: dict, where: str, backend_key: str) -> list[Job]:
+class _Analyses:
+    """The jobs that analyse finished runs of the [[train]] grid: evaluation on another engine, the
+    landscape, the step gain and the video, each after the run it reads."""
+
+    def __init__(self, train_jobs: list[Job], stream) -> None:
+        self.train_jobs, self.stream = train_jobs, stream
+
+    def select(self, block: dict, where: str, backend_key: str) -> list[Job]:
         """The grid's runs an analysis block names. ``epochs`` and ``train_num_envs`` tell apart runs of
         two [[train]] blocks that share task, backend, algorithm, seed, horizon and preset; a block that
         would select both is refused rather than silently given one of them."""
@@ -736,7 +740,7 @@ def plan(data: dict, store: Path, stream=None) -> list[Job]:
         hyperparameters = tuple(sorted(block.get("hyperparameters", {}).items()))  # an ablation's runs
         found = [
             job
-            for job in train_jobs
+            for job in self.train_jobs
             if job.run.task == block.get("task")
             and job.run.backend == block.get(backend_key)
             and job.run.algo in _names(block.get("algos", [job.run.algo]), f"{where} algos")
@@ -762,36 +766,7 @@ def plan(data: dict, store: Path, stream=None) -> list[Job]:
                 )
         return found
 
-    for i, block in enumerate(data.get("sim_to_sim", [])):
-        where = f"[[sim_to_sim]] #{i + 1}"
-        for source in select(block, where, "train_backend"):
-            protocol = {
-                "seeds": int(block.get("eval_seeds", 2)),
-                "num_envs": int(block.get("num_envs", 8)),
-                "max_steps": block.get("max_steps"),
-            }
-            for backend in (block["train_backend"], block["eval_backend"]):
-                out = source.run_dir / f"sim2sim_on_{backend}.json"
-                words = ["--eval-seeds", protocol["seeds"], "--num-envs", protocol["num_envs"]]
-                if protocol["max_steps"]:
-                    words += ["--max-steps", protocol["max_steps"]]
-                steps = 2 * protocol["seeds"] * protocol["num_envs"] * _episode(source.run.task, protocol["max_steps"])
-                jobs.append(
-                    Job(
-                        label=f"sim-to-sim {source.label} on {backend}",
-                        kind="sim_to_sim",
-                        argv=_harness("eval", "--run", source.run_dir, "--backend", backend, *words, "--out", out),
-                        output=out,
-                        estimate_s=_STARTUP_S + steps * _SECONDS_PER_EVAL_STEP.get((backend, source.run.task), 3e-3),
-                        cost_key=("sim_to_sim", backend, source.run.task),
-                        expect={"backend": backend} | {k: v for k, v in protocol.items()},
-                        after=[source.label],
-                    )
-                )
-
-    from harness.run_folder import CHECKPOINT
-
-    def with_final_policy(sources: list[Job], where: str, output_of) -> list[Job]:
+    def with_final_policy(self, sources: list[Job], where: str, output_of) -> list[Job]:
         """``sources`` less the runs finished without their final checkpoint (a store whose checkpoints
         were not kept) and without the analysis made before (the file ``output_of(job)``): nothing can
         analyse their final policy, so the block says so once and skips them."""
@@ -800,86 +775,139 @@ def plan(data: dict, store: Path, stream=None) -> list[Job]:
         ]
         if lost:
             names = ", ".join(f"{j.run.algo} s{j.run.seed}" for j in lost)
-            print(f"{where}: skips {len(lost)} finished runs whose final policy was not kept: {names}", file=out_stream)
+            print(
+                f"{where}: skips {len(lost)} finished runs whose final policy was not kept: {names}", file=self.stream
+            )
         return [j for j in sources if j not in lost]
 
-    out_stream = stream or sys.stdout
-    for i, block in enumerate(data.get("landscape", [])):
-        where = f"[[landscape]] #{i + 1}"
-        for source in with_final_policy(select(block, where, "backend"), where, lambda j: j.run_dir / "landscape.json"):
-            grid, span = int(block.get("grid", 40)), float(block.get("span", 1.0))
-            num_envs = int(block.get("num_envs", source.run.num_envs))
-            out = source.run_dir / "landscape.json"
-            jobs.append(
-                Job(
-                    label=f"landscape {source.label}",
-                    kind="landscape",
-                    argv=_harness(
-                        "landscape", "--run", source.run_dir, "--grid", grid, "--span", span, "--num-envs", num_envs
-                    ),
-                    output=out,
-                    estimate_s=_STARTUP_S + grid * grid * num_envs * source.run.horizon * 5e-4,
-                    cost_key=("landscape", source.run.backend, source.run.task),
-                    expect={"grid": grid, "span": span, "num_envs": num_envs},
-                    after=[source.label],
-                )
-            )
-    for i, block in enumerate(data.get("step_gain", [])):
-        where = f"[[step_gain]] #{i + 1}"
-        for source in with_final_policy(select(block, where, "backend"), where, lambda j: j.run_dir / "step_gain.json"):
-            states, stride = int(block.get("states", 256)), int(block.get("stride", 8))
-            num_envs = int(block.get("num_envs", source.run.num_envs))
-            out = source.run_dir / "step_gain.json"
-            # the Jacobians (a backward pass per state coordinate, about 40, through the states and one window)
-            gradient_steps = 40 * (states + source.run.horizon * num_envs)
-            jobs.append(
-                Job(
-                    label=f"step gain {source.label}",
-                    kind="step_gain",
-                    argv=_harness(
-                        "step-gain",
-                        "--run",
-                        source.run_dir,
-                        "--states",
-                        states,
-                        "--stride",
-                        stride,
-                        "--num-envs",
-                        num_envs,
-                    ),
-                    output=out,
-                    estimate_s=_STARTUP_S
-                    + gradient_steps * _SECONDS_PER_ENV_STEP.get((source.run.backend, source.run.task), 3e-3),
-                    cost_key=("step_gain", source.run.backend, source.run.task),
-                    expect={"states": states, "stride": stride, "num_envs": num_envs},
-                    after=[source.label],
-                )
-            )
-    from harness.render import compared_backends, record_stem
+    def sim_to_sim(self, data: dict) -> list[Job]:
+        """Each selected run evaluated on both engines of its block (the same protocol on each)."""
+        jobs: list[Job] = []
+        for i, block in enumerate(data.get("sim_to_sim", [])):
+            where = f"[[sim_to_sim]] #{i + 1}"
+            for source in self.select(block, where, "train_backend"):
+                protocol = {
+                    "seeds": int(block.get("eval_seeds", 2)),
+                    "num_envs": int(block.get("num_envs", 8)),
+                    "max_steps": block.get("max_steps"),
+                }
+                for backend in (block["train_backend"], block["eval_backend"]):
+                    out = source.run_dir / f"{ON_ENGINE}{backend}.json"
+                    words = ["--eval-seeds", protocol["seeds"], "--num-envs", protocol["num_envs"]]
+                    if protocol["max_steps"]:
+                        words += ["--max-steps", protocol["max_steps"]]
+                    steps = (
+                        2 * protocol["seeds"] * protocol["num_envs"] * _episode(source.run.task, protocol["max_steps"])
+                    )
+                    jobs.append(
+                        Job(
+                            label=f"sim-to-sim {source.label} on {backend}",
+                            kind="sim_to_sim",
+                            argv=_harness("eval", "--run", source.run_dir, "--backend", backend, *words, "--out", out),
+                            output=out,
+                            estimate_s=_STARTUP_S
+                            + steps * _SECONDS_PER_EVAL_STEP.get((backend, source.run.task), 3e-3),
+                            cost_key=("sim_to_sim", backend, source.run.task),
+                            expect={"backend": backend} | {k: v for k, v in protocol.items()},
+                            after=[source.label],
+                        )
+                    )
 
-    for i, block in enumerate(data.get("render", [])):
-        where = f"[[render]] #{i + 1}"
-        compare = bool(block.get("compare", False))
+        return jobs
 
-        def video_of(job: Job, compare: bool = compare) -> Path:
-            shown = compared_backends(job.run.backend) if compare else [job.run.backend]
-            return record_stem(job.run_dir, shown).with_suffix(".json")
-
-        for source in with_final_policy(select(block, where, "backend"), where, video_of):
-            max_steps, frames = int(block.get("max_steps", 300)), int(block.get("frames", 60))
-            words = ["--max-steps", max_steps, "--frames", frames] + (["--compare"] if compare else [])
-            out = video_of(source)
-            per_frame = (2.0 if source.run.task == "soft_jumper" else 0.5) * (2 if compare else 1)
-            jobs.append(
-                Job(
-                    label=f"render {source.label}" + (" (compare)" if compare else ""),
-                    kind="render",
-                    argv=_harness("render", "--run", source.run_dir, *words),
-                    output=out,
-                    estimate_s=_STARTUP_S + frames * per_frame,
-                    cost_key=("render", source.run.backend, source.run.task),
-                    expect={"max_steps": max_steps, "frames": frames},
-                    after=[source.label],
+    def landscape(self, data: dict) -> list[Job]:
+        """The actor-loss landscape of each selected run's final policy (Fig. 3)."""
+        jobs: list[Job] = []
+        for i, block in enumerate(data.get("landscape", [])):
+            where = f"[[landscape]] #{i + 1}"
+            for source in self.with_final_policy(
+                self.select(block, where, "backend"), where, lambda j: j.run_dir / LANDSCAPE
+            ):
+                grid, span = int(block.get("grid", 40)), float(block.get("span", 1.0))
+                num_envs = int(block.get("num_envs", source.run.num_envs))
+                out = source.run_dir / LANDSCAPE
+                jobs.append(
+                    Job(
+                        label=f"landscape {source.label}",
+                        kind="landscape",
+                        argv=_harness(
+                            "landscape", "--run", source.run_dir, "--grid", grid, "--span", span, "--num-envs", num_envs
+                        ),
+                        output=out,
+                        estimate_s=_STARTUP_S + grid * grid * num_envs * source.run.horizon * 5e-4,
+                        cost_key=("landscape", source.run.backend, source.run.task),
+                        expect={"grid": grid, "span": span, "num_envs": num_envs},
+                        after=[source.label],
+                    )
                 )
-            )
-    return jobs
+        return jobs
+
+    def step_gain(self, data: dict) -> list[Job]:
+        """The per-step Jacobian gain along each selected run's final policy (Proposition 1)."""
+        jobs: list[Job] = []
+        for i, block in enumerate(data.get("step_gain", [])):
+            where = f"[[step_gain]] #{i + 1}"
+            for source in self.with_final_policy(
+                self.select(block, where, "backend"), where, lambda j: j.run_dir / STEP_GAIN
+            ):
+                states, stride = int(block.get("states", 256)), int(block.get("stride", 8))
+                num_envs = int(block.get("num_envs", source.run.num_envs))
+                out = source.run_dir / STEP_GAIN
+                # the Jacobians (a backward pass per state coordinate, about 40, through the states and one window)
+                gradient_steps = 40 * (states + source.run.horizon * num_envs)
+                jobs.append(
+                    Job(
+                        label=f"step gain {source.label}",
+                        kind="step_gain",
+                        argv=_harness(
+                            "step-gain",
+                            "--run",
+                            source.run_dir,
+                            "--states",
+                            states,
+                            "--stride",
+                            stride,
+                            "--num-envs",
+                            num_envs,
+                        ),
+                        output=out,
+                        estimate_s=_STARTUP_S
+                        + gradient_steps * _SECONDS_PER_ENV_STEP.get((source.run.backend, source.run.task), 3e-3),
+                        cost_key=("step_gain", source.run.backend, source.run.task),
+                        expect={"states": states, "stride": stride, "num_envs": num_envs},
+                        after=[source.label],
+                    )
+                )
+        return jobs
+
+    def render(self, data: dict) -> list[Job]:
+        """A video of each selected run's final policy, beside the other engine's with ``compare``."""
+        jobs: list[Job] = []
+        from harness.render import compared_backends, record_stem
+
+        for i, block in enumerate(data.get("render", [])):
+            where = f"[[render]] #{i + 1}"
+            compare = bool(block.get("compare", False))
+
+            def video_of(job: Job, compare: bool = compare) -> Path:
+                shown = compared_backends(job.run.backend) if compare else [job.run.backend]
+                return record_stem(job.run_dir, shown).with_suffix(".json")
+
+            for source in self.with_final_policy(self.select(block, where, "backend"), where, video_of):
+                max_steps, frames = int(block.get("max_steps", 300)), int(block.get("frames", 60))
+                words = ["--max-steps", max_steps, "--frames", frames] + (["--compare"] if compare else [])
+                out = video_of(source)
+                per_frame = (2.0 if source.run.task == "soft_jumper" else 0.5) * (2 if compare else 1)
+                jobs.append(
+                    Job(
+                        label=f"render {source.label}" + (" (compare)" if compare else ""),
+                        kind="render",
+                        argv=_harness("render", "--run", source.run_dir, *words),
+                        output=out,
+                        estimate_s=_STARTUP_S + frames * per_frame,
+                        cost_key=("render", source.run.backend, source.run.task),
+                        expect={"max_steps": max_steps, "frames": frames},
+                        after=[source.label],
+                    )
+                )
+        return jobs

@@ -300,6 +300,31 @@ def _summary(rows: list[dict]) -> dict:
     return out
 
 
+def _sample_sources(sim, sources, sampling) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, list[str]]:
+    """States in contact from each ``(label, count, policy)`` source (None: random actions), stacked,
+    with each state's source label."""
+    settle, stride, seed, action_scale, in_contact = sampling
+    parts = [
+        sample_contact_states(sim, n, settle, stride, seed, action_scale, in_contact, policy) + (label,)
+        for label, n, policy in sources
+    ]
+    q, qd, actions = (torch.cat([p[k] for p in parts]) for k in range(3))
+    return q, qd, actions, [p[3] for p in parts for _ in range(p[0].shape[0])]
+
+
+def _classes(rows: list[dict]) -> dict[str, list[dict]]:
+    """The states of each class the summary separates (a state may be in several)."""
+    resting = [r for r in rows if r["contacts"] > 0 and not r["onset"] and not r["limit"]]
+    return {
+        "contact made or broken in the step": [r for r in rows if r["onset"]],
+        "joint limit active": [r for r in rows if r["limit"]],
+        "friction slides (some contact at the cone)": [r for r in rows if r["sliding"]],
+        "friction sticks (every contact inside the cone)": [r for r in rows if r["sticking"]],
+        "contact, no onset, no limit": resting,
+        "no onset, no limit, friction sticks": [r for r in resting if r["sticking"]],
+    }
+
+
 def contact_jacobians(
     task_name: str,
     backend: str,
@@ -336,12 +361,8 @@ def contact_jacobians(
         progress(f"training the sampling policy: SHAC, {policy_epochs} epochs on newton")
         policy = train_policy(task, policy_epochs, seed)
         sources.append((f"SHAC policy after {policy_epochs} epochs", states // 2, policy))
-    parts = [
-        sample_contact_states(sim, n, settle, stride, seed, action_scale, in_contact, policy) + (label,)
-        for label, n, policy in sources
-    ]
-    q, qd, actions = (torch.cat([p[k] for p in parts]) for k in range(3))
-    labels = [p[3] for p in parts for _ in range(p[0].shape[0])]
+    sampling = (settle, stride, seed, action_scale, in_contact)
+    q, qd, actions, labels = _sample_sources(sim, sources, sampling)
     lifted = q.clone()
     if task.layout.floating_base:
         lifted[:, 2] = task.airborne_height
@@ -369,16 +390,6 @@ def contact_jacobians(
         smooth = make_task(task_name, dataclasses.replace(task.physics, contact_kd=0.0), preset=preset)
         smooth_sim = make_sim(backend, smooth, num_envs, device=device, seed=seed, horizon=4, **(options or {}))
         undamped = check(q, "the same states without contact damping (control):", smooth_sim)
-    classes = {
-        "contact made or broken in the step": [r for r in rows if r["onset"]],
-        "joint limit active": [r for r in rows if r["limit"]],
-        "friction slides (some contact at the cone)": [r for r in rows if r["sliding"]],
-        "friction sticks (every contact inside the cone)": [r for r in rows if r["sticking"]],
-        "contact, no onset, no limit": [r for r in rows if r["contacts"] > 0 and not r["onset"] and not r["limit"]],
-        "no onset, no limit, friction sticks": [
-            r for r in rows if r["contacts"] > 0 and not r["onset"] and not r["limit"] and r["sticking"]
-        ],
-    }
     result = {
         "task": task_name,
         "backend": backend,
@@ -395,7 +406,7 @@ def contact_jacobians(
         "options": dict(options or {}),
         "all": _summary(rows),
         "by_source": {label: _summary([r for r in rows if r["source"] == label]) for label, _, _ in sources},
-        "by_class": {name: _summary(members) for name, members in classes.items()},
+        "by_class": {name: _summary(members) for name, members in _classes(rows).items()},
         "control_lifted": _summary(control),
         "control_no_contact_damping": _summary(undamped) if undamped is not None else None,
         "control_in_contact": sum(r["contacts"] > 0 for r in control),

@@ -50,10 +50,12 @@ def device_problem(device: str) -> str | None:
     return None
 
 
+PHYSICS_RENAMED = {"pd_ke": "pd_kp"}  # physics constants of older config.json files, under today's names
+
+
 def physics_fields(recorded: dict) -> dict:
     """A run's recorded physics constants, as PhysicsSpec fields (lists back to tuples; old names mapped)."""
-    renamed = {"pd_ke": "pd_kp"}
-    return {renamed.get(k, k): tuple(v) if isinstance(v, list) else v for k, v in recorded.items()}
+    return {PHYSICS_RENAMED.get(k, k): tuple(v) if isinstance(v, list) else v for k, v in recorded.items()}
 
 
 def run_task(config: dict, physics: PhysicsSpec | None = None):

@@ -39,10 +39,9 @@ from algorithms.actor_critic import FirstOrderActorCritic
 from algorithms.returns import actor_loss_from_returns, h_step_returns, segment_starts, td_lambda_returns
 from harness.envs import make_env, run_task
 from harness.results import RunError, provenance, write_json
-from harness.run_folder import CHECKPOINT, open_run
+from harness.run_folder import CHECKPOINT, LANDSCAPE, open_run
 from harness.train import load_checkpoint
 
-LANDSCAPE = "landscape.json"
 DIRECTIONS = "filter-normalised Gaussian (Li et al. 2018), rows of weight matrices, biases 0"
 SURFACES = ("h_step", "td_lambda")
 
@@ -166,6 +165,38 @@ def _surface_list(z: np.ndarray) -> list[list[float | None]]:
     return [[float(v) if math.isfinite(v) else None for v in row] for row in z.tolist()]
 
 
+def _check_arguments(grid, span, num_envs, warmup_steps) -> None:
+    """Refuse a landscape's arguments in one line before any work."""
+    if isinstance(grid, bool) or not isinstance(grid, int) or grid < 2:
+        raise RunError(f"landscape grid must be an integer >= 2, got {grid!r}")
+    if not (isinstance(span, int | float) and math.isfinite(span) and span > 0):
+        raise RunError(f"landscape span must be a finite number > 0, got {span!r}")
+    if num_envs is not None and (isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1):
+        raise RunError(f"landscape num_envs must be an integer >= 1, got {num_envs!r}")
+    if isinstance(warmup_steps, bool) or not isinstance(warmup_steps, int) or warmup_steps < 0:
+        raise RunError(f"landscape warmup_steps must be an integer >= 0, got {warmup_steps!r}")
+
+
+def _sweep(probe, directions, alphas, betas, label: str, stream) -> dict[str, np.ndarray]:
+    """Both losses at every point ``theta + a d1 + b d2`` of the plane, surfaces indexed [a, b]; a progress
+    line every tenth of the points."""
+    d1, d2 = directions
+    surfaces = {name: np.full((len(alphas), len(betas)), np.nan) for name in SURFACES}
+    start = time.perf_counter()
+    total = len(alphas) * len(betas)
+    every = max(1, total // 10)
+    for k in range(total):
+        i, j = divmod(k, len(betas))
+        a, b = float(alphas[i]), float(betas[j])
+        shift = {name: a * d1[name] + b * d2[name] for name in d1}
+        surfaces["h_step"][i, j], surfaces["td_lambda"][i, j] = probe.losses(shift)
+        if (k + 1) % every == 0 or k + 1 == total:
+            elapsed = time.perf_counter() - start
+            left = elapsed / (k + 1) * (total - k - 1)
+            print(f"{label}: {k + 1}/{total} points, {elapsed:.1f} s, ~{left:.0f} s left", file=stream, flush=True)
+    return surfaces
+
+
 def compute_landscape(
     run_dir,
     grid: int = 40,
@@ -195,14 +226,7 @@ def compute_landscape(
     """
     stream = stream or sys.stdout  # the stdout of now, not of import time
     run_dir = Path(run_dir)
-    if isinstance(grid, bool) or not isinstance(grid, int) or grid < 2:
-        raise RunError(f"landscape grid must be an integer >= 2, got {grid!r}")
-    if not (isinstance(span, int | float) and math.isfinite(span) and span > 0):
-        raise RunError(f"landscape span must be a finite number > 0, got {span!r}")
-    if num_envs is not None and (isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1):
-        raise RunError(f"landscape num_envs must be an integer >= 1, got {num_envs!r}")
-    if isinstance(warmup_steps, bool) or not isinstance(warmup_steps, int) or warmup_steps < 0:
-        raise RunError(f"landscape warmup_steps must be an integer >= 0, got {warmup_steps!r}")
+    _check_arguments(grid, span, num_envs, warmup_steps)
     config = open_run(run_dir, (checkpoint,))
     cfg = config["algo_config"]
     n = num_envs or cfg.num_envs
@@ -227,19 +251,8 @@ def compute_landscape(
         probe = _Probe(algo, env, noise_seed=seed + 1)
         alphas = np.linspace(-span, span, grid)
         betas = np.linspace(-span, span, grid)
-        surfaces = {name: np.full((grid, grid), np.nan) for name in SURFACES}
         center = probe.losses()
-        total, every = grid * grid, max(1, (grid * grid) // 10)
-        for k in range(total):
-            i, j = divmod(k, grid)
-            a, b = float(alphas[i]), float(betas[j])
-            shift = {name: a * d1[name] + b * d2[name] for name in d1}
-            surfaces["h_step"][i, j], surfaces["td_lambda"][i, j] = probe.losses(shift)
-            if (k + 1) % every == 0 or k + 1 == total:
-                elapsed = time.perf_counter() - start_time
-                left = elapsed / (k + 1) * (total - k - 1)
-                line = f"landscape {run_dir.name}: {k + 1}/{total} points, {elapsed:.1f} s, ~{left:.0f} s left"
-                print(line, file=stream, flush=True)
+        surfaces = _sweep(probe, (d1, d2), alphas, betas, f"landscape {run_dir.name}", stream)
         probe.restore()
 
     rough, nonfinite = {}, {}
@@ -278,43 +291,6 @@ def compute_landscape(
 
 
 # -- output ------------------------------------------------------------------------------------
-def plot_landscape(result: dict, path) -> Path:
-    """Both surfaces side by side as filled contours (own colour scale per panel), roughness in the titles.
-
-    x is the first direction's coefficient (``alphas``), y the second's (``betas``); the cross marks
-    the trained policy. Non-finite points are left blank. Written atomically (temporary file, rename).
-    """
-    from harness.report.plots import pyplot, save_figure
-
-    plt, sns = pyplot()
-
-    alphas, betas = np.asarray(result["alphas"]), np.asarray(result["betas"])
-    labels = {
-        "h_step": "h-step return (eq. 9)",
-        "td_lambda": f"TD-lambda return (eq. 12), lambda={result['lambda']:.3f}",
-    }
-    sns.set_theme(style="white")
-    fig, axes = plt.subplots(1, 2, figsize=(12, 5))
-    for ax, name in zip(axes, SURFACES, strict=True):
-        # surfaces are indexed [alpha, beta]; contourf wants [y, x]
-        z = np.ma.masked_invalid(np.asarray(result["losses"][name], dtype=np.float64).T)
-        filled = ax.contourf(alphas, betas, z, levels=30, cmap="viridis")
-        ax.contour(alphas, betas, z, levels=15, colors="k", linewidths=0.3, alpha=0.5)
-        fig.colorbar(filled, ax=ax, label="actor loss")
-        ax.plot([0.0], [0.0], marker="x", color="red", markersize=8)
-        r = result["roughness"][name]
-        ax.set_title(f"{labels[name]}\nroughness {r:.3f}" if r is not None else f"{labels[name]}\nroughness n/a")
-        ax.set_xlabel("alpha (direction 1)")
-        ax.set_ylabel("beta (direction 2)")
-        ax.set_aspect("equal")
-    fig.suptitle(
-        f"{result['task']} / {result['backend']} / {result['algo']}: {result['grid']}x{result['grid']} grid, "
-        f"{result['num_envs']} envs, h={result['horizon']}"
-    )
-    fig.tight_layout()
-    return save_figure(fig, path)
-
-
 def write_landscape(run_dir, result: dict) -> Path:
     """Write ``result`` to ``run_dir/landscape.json`` atomically (:func:`harness.results.write_json`)."""
     return write_json(Path(run_dir) / LANDSCAPE, result)

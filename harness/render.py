@@ -11,16 +11,17 @@ them, each labelled with its step and the return so far.
 
 from __future__ import annotations
 
+import os
+import re
 import shutil
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from harness.results import RunError, atomic_write_bytes, provenance, write_json
+from harness.results import RunError, atomic_write_bytes, provenance, slow_write_for_tests, write_json
 
 FILMSTRIP_FRAMES = 6
 EVAL_SEED = 10_000  # evaluate()'s first seed
@@ -92,21 +93,40 @@ def ffmpeg_executable() -> str | None:
         return None
 
 
+PARTIAL = ".part"  # a video being written: ``.NAME.mp4.PID.part``
+
+
+def remove_leftovers(folder: Path, stream=None) -> None:
+    """Remove what an interrupted render left in ``folder``: partial videos whose writer is gone, and
+    the ``tmpXXXXXXXX.mp4`` files earlier versions wrote there (a real video extension on half a video)."""
+    from harness.folder_claims import process_alive
+
+    for path in folder.glob(f".*{PARTIAL}"):
+        pid = path.name.removesuffix(PARTIAL).rpartition(".")[2]
+        if pid.isdigit() and not process_alive(int(pid)):
+            path.unlink(missing_ok=True)
+            print(f"removed {path.name}: a video an interrupted render left", file=stream or sys.stdout)
+    for path in folder.glob("tmp*.mp4"):
+        if re.fullmatch(r"tmp[a-z0-9_]{8}\.mp4", path.name):
+            path.unlink(missing_ok=True)
+            print(f"removed {path.name}: a video an interrupted render left", file=stream or sys.stdout)
+
+
 def write_video(pictures: list[np.ndarray], stem: Path, fps: int = 10) -> Path:
     """MP4 through ffmpeg (:func:`ffmpeg_executable`), else an animated GIF; written whole or not at all."""
     ffmpeg = ffmpeg_executable()
     if ffmpeg:
         out = stem.with_suffix(".mp4")
         height, width = pictures[0].shape[:2]
-        with tempfile.NamedTemporaryFile(dir=out.parent, suffix=".mp4", delete=False) as tmp:
-            pass
+        partial = out.with_name(f".{out.name}.{os.getpid()}{PARTIAL}")  # no video extension: never taken for one
         command = [ffmpeg, "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24"]
-        command += ["-s", f"{width}x{height}", "-r", str(fps), "-i", "-", "-pix_fmt", "yuv420p", tmp.name]
+        command += ["-s", f"{width}x{height}", "-r", str(fps), "-i", "-", "-pix_fmt", "yuv420p", "-f", "mp4"]
         try:
-            subprocess.run(command, input=b"".join(p.tobytes() for p in pictures), check=True)
-            Path(tmp.name).replace(out)
+            subprocess.run([*command, str(partial)], input=b"".join(p.tobytes() for p in pictures), check=True)
+            slow_write_for_tests()
+            partial.replace(out)
         except BaseException:
-            Path(tmp.name).unlink(missing_ok=True)
+            partial.unlink(missing_ok=True)
             raise
         return out
     import io
@@ -139,6 +159,7 @@ def render(run_dir: str | Path, backends: list[str], steps: int, frames: int, st
     run_dir = Path(run_dir)
     stream = stream or sys.stdout
     configs = [open_run(run_dir, (CHECKPOINT,), backend) for backend in backends]
+    remove_leftovers(run_dir, stream)
     panels = []
     for backend, config in zip(backends, configs, strict=True):
         print(f"render {run_dir.name} on {backend}: {steps} steps at most, {frames} frames", file=stream, flush=True)

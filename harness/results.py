@@ -189,6 +189,29 @@ def path_problem(path: str | os.PathLike) -> str | None:
     return None
 
 
+def out_problem(out: str | os.PathLike, kind: str = "file", flag: str = "--out") -> str | None:
+    """The one check of every output path a verb is given, before any work: why ``out`` cannot be
+    written as a ``kind`` ("file": a result file or a prefix of files; "folder": a directory a verb fills),
+    as one line naming ``flag``, or None. Refused: an empty name (it would read as "not given"), a control
+    character (a newline in a file name), what :func:`path_problem` refuses, and an existing path of the
+    other kind."""
+    text = str(out)
+    noun = "a file" if kind == "file" else "a directory"
+    if not text.strip():
+        return f"{flag} is empty: name {noun}"
+    if any(ord(ch) < 32 for ch in text):
+        return f"{flag} {text!r}: a name on one line without control characters"
+    path = Path(text)
+    problem = path_problem(path if kind == "file" else path / "a-file-inside")
+    if problem:
+        return f"{flag} {text}: {problem}"
+    if kind == "file" and path.is_dir():
+        return f"{flag} {text} is a directory; name a file"
+    if kind != "file" and path.exists() and not path.is_dir():
+        return f"{flag} {text} is an existing file, not a directory"
+    return None
+
+
 def slow_write_for_tests() -> None:
     """Tests set DIFFSIM_BENCH_TEST_WRITE_DELAY (seconds) to hold every file write half-done for a while,
     so that a kill lands inside a write; unset (always, outside those tests) this does nothing."""

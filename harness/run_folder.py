@@ -20,13 +20,41 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from algorithms.config import AlgoConfig
+from algorithms.config import REMOVED_HYPERPARAMETERS, AlgoConfig
 from harness.results import RunError
 from harness.spec_schema import INT_MAX, MAX_EPOCHS
 
-CONFIG = "config.json"
-CHECKPOINT = "checkpoint.pt"
-INIT_CHECKPOINT = "checkpoint_init.pt"
+# -- the files of a run folder: every module names them through these ----------------------------------
+CONFIG = "config.json"  # what the run is: task, backend, seed, physics, hyperparameters, provenance
+CHECKPOINT = "checkpoint.pt"  # the latest (at the end: the final) policy, critic, optimisers and env state
+INIT_CHECKPOINT = "checkpoint_init.pt"  # the untrained policy, for the initial-return evaluation
+METRICS = "metrics.jsonl"  # one line per finished epoch
+EVALUATION = "eval.json"  # the initial and final policies evaluated on the training engine
+JOB = "job.json"  # the suite's plan of the run (bench-run reads it)
+LANDSCAPE = "landscape.json"  # the final policy's actor-loss landscape (Fig. 3)
+STEP_GAIN = "step_gain.json"  # the per-step Jacobian gain along the final policy (Proposition 1)
+#: an evaluation on another engine (sim-to-sim) is ``sim2sim_on_<engine>.json``; the suite also writes
+#: one for the training engine with the same protocol, as the comparison's reference
+ON_ENGINE = "sim2sim_on_"
+#: the same, as ``eval --backend`` named it before there was one name; read, never written
+OLDER_ON_ENGINE = ("eval_on_",)
+
+
+def evaluation_file(backend: str, trained_on: str) -> str:
+    """Where ``eval`` writes by default: :data:`EVALUATION` on the training engine, else the
+    evaluation on another engine (:data:`ON_ENGINE`)."""
+    return EVALUATION if backend == trained_on else f"{ON_ENGINE}{backend}.json"
+
+
+def engine_evaluations(run_dir: Path) -> list[tuple[str, str, Path]]:
+    """Every evaluation on a named engine in ``run_dir``: (prefix, engine, path), older names included."""
+    found = []
+    for prefix in (ON_ENGINE, *OLDER_ON_ENGINE):
+        for path in sorted(Path(run_dir).glob(f"{prefix}*.json")):
+            found.append((prefix, path.stem[len(prefix) :], path))
+    return found
+
+
 IDENTITY = ("task", "backend", "seed", "algo", "num_envs", "horizon")  # what a checkpoint records of its run
 
 
@@ -75,6 +103,48 @@ def read_config(run_dir: str | Path) -> dict:
     return config
 
 
+def _version_problem(config: dict) -> str | None:
+    """Whether ``config`` was written by a version whose fields differ from this one's in a way that
+    changes meaning: a hyperparameter or physics constant it lacks (this version would fill a default
+    the run never had) or a physics constant this version does not know. As a phrase, or None."""
+    import dataclasses
+
+    from harness.envs import physics_fields
+    from simcore import PhysicsSpec
+
+    recorded = set(config["algo"]) - REMOVED_HYPERPARAMETERS
+    missing = sorted({f.name for f in dataclasses.fields(AlgoConfig)} - recorded)
+    if missing:
+        return f"has no hyperparameter {', '.join(missing)} (written by an older version)"
+    if "preset" not in config or not isinstance(config.get("physics"), dict):
+        return "records no physics preset or constants (written by an older version)"
+    physics = set(physics_fields(config["physics"]))
+    known = {f.name for f in dataclasses.fields(PhysicsSpec)}
+    if physics - known:
+        return f"has physics constant(s) {', '.join(sorted(physics - known))} this version does not know"
+    if known - physics:
+        return f"has no physics constant {', '.join(sorted(known - physics))} (written by an older version)"
+    return None
+
+
+def upgrade_notes(config: dict) -> list[str]:
+    """The explicit upgrade of an older config.json that keeps its meaning, one phrase per change:
+    renamed physics constants read under today's names, removed hyperparameters that were never read.
+    A resume says them before it continues."""
+    from harness.envs import PHYSICS_RENAMED
+
+    notes = [
+        f"physics constant {old} read as {new} (renamed)"
+        for old, new in PHYSICS_RENAMED.items()
+        if old in (config.get("physics") or {})
+    ]
+    notes += [
+        f"hyperparameter {name!r} dropped (never read)"
+        for name in sorted(REMOVED_HYPERPARAMETERS & set(config["algo"]))
+    ]
+    return notes
+
+
 def check_here(config: dict, backend: str | None = None) -> None:
     """Refuse a run this machine cannot run (on ``backend``, default its own): an engine, task or
     preset that is not installed, backend options the adapter rejects, a device it lacks."""
@@ -92,6 +162,11 @@ def check_here(config: dict, backend: str | None = None) -> None:
     ):
         if name is not None and name not in installed:
             raise RunError(f"{CONFIG} of this run: {UnknownNameError(kind, name, installed)}")
+    problem = _version_problem(config)
+    if problem:
+        raise RunError(
+            f"{CONFIG} of this run {problem}: filling today's defaults could change what the run is; train it again"
+        )
     try:
         task = run_task(config)
     except (UnknownPresetError, TypeError, ValueError) as exc:  # a preset or constants this task does not have
@@ -106,6 +181,21 @@ def check_here(config: dict, backend: str | None = None) -> None:
     problem = device_problem(config["device"])
     if problem:
         raise RunError(f"{CONFIG} of this run: {problem}")
+
+
+def address(config: dict) -> dict:
+    """What a run folder is addressed by, read from its config (:func:`read_config`): the fields that make
+    the result (task, backend, seed, device, epochs, hyperparameters, physics, engine options and
+    gradient settings). The suite plans the same fields (:meth:`harness.bench.RunSpec.identity`) and
+    refuses a folder whose address differs from its plan's."""
+    recorded = {k: config[k] for k in ("task", "backend", "seed", "device", "epochs")}
+    recorded["algo"] = config["algo_config"].as_dict()
+    recorded["physics"] = config.get("physics_record")
+    if config.get("backend_options"):
+        recorded["backend_options"] = config["backend_options"]
+    if config.get("gradients"):
+        recorded["gradients"] = config["gradients"]
+    return recorded
 
 
 def run_identity(config: dict) -> dict:

@@ -20,18 +20,20 @@ import time
 from pathlib import Path
 
 from harness.bench import (
-    CHECK_KINDS,
     Job,
     _hash,
     _training_complete,
     check_spec,
+    damage,
     load_spec,
     memory_problem,
     plan,
 )
-from harness.claims import Claim
+from harness.check_kinds import CHECK_KINDS
+from harness.folder_claims import Claim
 from harness.progress import ProgressLine, duration
 from harness.results import RunError, RunStopped, path_problem
+from harness.run_folder import CONFIG, EVALUATION, JOB
 
 
 class SuiteStopped(RunStopped):
@@ -49,7 +51,7 @@ class SuiteStopped(RunStopped):
 # -- running ----------------------------------------------------------------------------------------
 
 
-class _Progress:
+class _SuiteProgress:
     """Runs done / total with an ETA from the estimated costs, corrected by the jobs that finished."""
 
     def __init__(self, name: str, jobs: list[Job], workers: int, stream):
@@ -96,107 +98,22 @@ def run_jobs(jobs: list[Job], store: Path, workers: int, name: str, stream=None,
     """Run the jobs not yet done, ``workers`` at a time, in order, each after the jobs it needs, on
     ``launcher`` (harness/launchers.py; default: local processes)."""
     stream = stream or sys.stdout  # the stdout of now, not of import time
-    from harness.launchers import LocalLauncher, last_error_line
+    from harness.launchers import LocalLauncher
 
     launcher = launcher or LocalLauncher(workers)
-    workers = launcher.workers
     logs = store / "logs"
     logs.mkdir(parents=True, exist_ok=True)
     for job in jobs:
         if job.is_done():
             job.state = "reused"
-    progress = _Progress(name, jobs, workers, stream)
+    progress = _SuiteProgress(name, jobs, launcher.workers, stream)
     progress.line(f"start ({launcher.describe()})")
-    by_label = {job.label: job for job in jobs}
-    cond = threading.Condition()
-    stop = threading.Event()
-    running: set = set()  # handles of the launched jobs (processes or Ray task references)
-    running_lock = threading.Lock()
-
-    def ready(job: Job) -> bool | None:
-        """True to start, None to skip (a job it needs failed), False to wait."""
-        states = [by_label[label].state for label in job.after]
-        if any(s in ("failed", "skipped") for s in states):
-            return None
-        return all(s in ("done", "reused") for s in states)
-
-    def worker() -> None:
-        while not stop.is_set():
-            with cond:
-                job = None
-                while job is None:
-                    pending = [j for j in jobs if j.state == "pending"]
-                    # analyses of finished runs first: a stopped suite then has them for what it trained
-                    pending.sort(key=lambda j: j.kind not in ("sim_to_sim", "landscape", "step_gain", "render"))
-                    if not pending or stop.is_set():
-                        return
-                    for candidate in pending:
-                        verdict = ready(candidate)
-                        if verdict is None:
-                            candidate.state = "skipped"
-                            cond.notify_all()
-                        elif verdict:
-                            job = candidate
-                            job.state = "running"
-                            break
-                    if job is None:
-                        if not any(j.state == "pending" for j in jobs):
-                            return
-                        cond.wait(timeout=1.0)
-            _run_one(job, logs, progress)
-            with cond:
-                cond.notify_all()
-
-    def _run_one(job: Job, logs: Path, progress: _Progress) -> None:
-        if job.kind == "train":
-            _write_job_file(job)
-        log = logs / f"{job.label.replace(' ', '_').replace('/', '-')}.log"
-        progress.line(f"start {job.label}")
-        start = time.perf_counter()
-        with running_lock:
-            if stop.is_set():
-                job.state = "pending"
-                return
-            handle = launcher.start(job.argv, log)
-            running.add(handle)
-        code = launcher.wait(handle)
-        with running_lock:
-            running.discard(handle)
-        seconds = time.perf_counter() - start
-        if code in (130, 143) or stop.is_set():
-            job.state = "pending"
-            stop.set()
-            progress.line(f"stopped {job.label} (resumable)")
-            return
-        job.state = "done" if code == 0 and job.is_done() else "failed"
-        progress.record(job, seconds)
-        note = "" if job.state == "done" else f" (exit {code}; see {log}): {last_error_line(log)}"
-        progress.line(f"{job.state} {job.label} in {duration(seconds)}{note}")
-
-    signals_seen: list[int] = []
-
-    def on_signal(signum, frame):
-        # Jobs run in their own sessions, so a terminal's Ctrl-C reaches only this process: pass each
-        # signal on exactly once. The first makes a training job finish its epoch and checkpoint; a
-        # second stops it at once (it resumes from its last checkpoint either way).
-        signals_seen.append(signum)
-        stop.set()
-        if len(signals_seen) == 1:
-            print(
-                f"\n{signal.Signals(signum).name}: the running jobs checkpoint at their next epoch boundary and stop; "
-                "run the same command again to continue (again to stop them now)",
-                file=stream,
-                flush=True,
-            )
-        with running_lock:
-            for handle in running:
-                launcher.signal(handle, signum)
-
+    scheduler = _Scheduler(jobs, launcher, logs, progress, stream)
     previous = {}
     if threading.current_thread() is threading.main_thread():
         for signum in (signal.SIGINT, signal.SIGTERM):
-            previous[signum] = signal.signal(signum, on_signal)
-    threads = [threading.Thread(target=worker, daemon=True) for _ in range(max(1, workers))]
+            previous[signum] = signal.signal(signum, scheduler.on_signal)
+    threads = [threading.Thread(target=scheduler.worker, daemon=True) for _ in range(max(1, launcher.workers))]
     try:
         for t in threads:
             t.start()
@@ -206,9 +123,105 @@ def run_jobs(jobs: list[Job], store: Path, workers: int, name: str, stream=None,
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler)
-    if signals_seen:
-        raise SuiteStopped(store, sum(j.state in ("done", "reused") for j in jobs), len(jobs), signals_seen[0])
+    if scheduler.signals_seen:
+        done = sum(j.state in ("done", "reused") for j in jobs)
+        raise SuiteStopped(store, done, len(jobs), scheduler.signals_seen[0])
     return jobs
+
+
+class _Scheduler:
+    """The worker threads' shared state: which job runs next, the launched handles, and the signals."""
+
+    def __init__(self, jobs: list[Job], launcher, logs: Path, progress: _SuiteProgress, stream) -> None:
+        self.jobs, self.launcher, self.logs, self.progress, self.stream = jobs, launcher, logs, progress, stream
+        self.by_label = {job.label: job for job in jobs}
+        self.cond = threading.Condition()
+        self.stop = threading.Event()
+        self.running: set = set()  # handles of the launched jobs (processes or Ray task references)
+        self.running_lock = threading.Lock()
+        self.signals_seen: list[int] = []
+
+    def ready(self, job: Job) -> bool | None:
+        """True to start, None to skip (a job it needs failed), False to wait."""
+        states = [self.by_label[label].state for label in job.after]
+        if any(s in ("failed", "skipped") for s in states):
+            return None
+        return all(s in ("done", "reused") for s in states)
+
+    def next_job(self) -> Job | None:
+        """The next job to run, marked running; None when nothing is left or the suite stops."""
+        with self.cond:
+            while True:
+                pending = [j for j in self.jobs if j.state == "pending"]
+                # analyses of finished runs first: a stopped suite then has them for what it trained
+                pending.sort(key=lambda j: j.kind not in ("sim_to_sim", "landscape", "step_gain", "render"))
+                if not pending or self.stop.is_set():
+                    return None
+                for candidate in pending:
+                    verdict = self.ready(candidate)
+                    if verdict is None:
+                        candidate.state = "skipped"
+                        self.cond.notify_all()
+                    elif verdict:
+                        candidate.state = "running"
+                        return candidate
+                if not any(j.state == "pending" for j in self.jobs):
+                    return None
+                self.cond.wait(timeout=1.0)
+
+    def worker(self) -> None:
+        while not self.stop.is_set():
+            job = self.next_job()
+            if job is None:
+                return
+            self.run_one(job)
+            with self.cond:
+                self.cond.notify_all()
+
+    def run_one(self, job: Job) -> None:
+        from harness.launchers import last_error_line
+
+        if job.kind == "train":
+            _write_job_file(job)
+        log = self.logs / f"{job.label.replace(' ', '_').replace('/', '-')}.log"
+        self.progress.line(f"start {job.label}")
+        start = time.perf_counter()
+        with self.running_lock:
+            if self.stop.is_set():
+                job.state = "pending"
+                return
+            handle = self.launcher.start(job.argv, log)
+            self.running.add(handle)
+        code = self.launcher.wait(handle)
+        with self.running_lock:
+            self.running.discard(handle)
+        seconds = time.perf_counter() - start
+        if code in (130, 143) or self.stop.is_set():
+            job.state = "pending"
+            self.stop.set()
+            self.progress.line(f"stopped {job.label} (resumable)")
+            return
+        job.state = "done" if code == 0 and job.is_done() else "failed"
+        self.progress.record(job, seconds)
+        note = "" if job.state == "done" else f" (exit {code}; see {log}): {last_error_line(log)}"
+        self.progress.line(f"{job.state} {job.label} in {duration(seconds)}{note}")
+
+    def on_signal(self, signum, frame) -> None:
+        # Jobs run in their own sessions, so a terminal's Ctrl-C reaches only this process: pass each
+        # signal on exactly once. The first makes a training job finish its epoch and checkpoint; a
+        # second stops it at once (it resumes from its last checkpoint either way).
+        self.signals_seen.append(signum)
+        self.stop.set()
+        if len(self.signals_seen) == 1:
+            print(
+                f"\n{signal.Signals(signum).name}: the running jobs checkpoint at their next epoch boundary and "
+                "stop; run the same command again to continue (again to stop them now)",
+                file=self.stream,
+                flush=True,
+            )
+        with self.running_lock:
+            for handle in self.running:
+                self.launcher.signal(handle, signum)
 
 
 def _write_job_file(job: Job) -> None:
@@ -217,14 +230,14 @@ def _write_job_file(job: Job) -> None:
 
     job.run_dir.mkdir(parents=True, exist_ok=True)
     payload = {**job.run.identity(), "eval": job.run.eval_settings(), "key": job.run.key, "preset": job.run.preset}
-    write_json(job.run_dir / "job.json", payload)
+    write_json(job.run_dir / JOB, payload)
 
 
 def bench_run(run_dir: str | Path, stream=None) -> Path:
     """One training run of the suite: train, or resume an interrupted one, then evaluate (``bench-run``)."""
     stream = stream or sys.stdout  # the stdout of now, not of import time
     run_dir = Path(run_dir)
-    path = run_dir / "job.json"
+    path = run_dir / JOB
     if not path.is_file():
         raise RunError(f"{run_dir} has no job.json: bench-run runs directories planned by `bench`")
     job = json.loads(path.read_text())
@@ -274,7 +287,7 @@ def _signals_unwind(run_dir: Path):
 
 def _evaluated(run_dir: Path, ev: dict) -> bool:
     try:
-        payload = json.loads((run_dir / "eval.json").read_text())
+        payload = json.loads((run_dir / EVALUATION).read_text())
     except (OSError, ValueError):
         return False
     expect = {"seeds": ev["seeds"], "max_steps": ev["max_steps"]} | (
@@ -285,23 +298,16 @@ def _evaluated(run_dir: Path, ev: dict) -> bool:
 
 def _train_and_evaluate(run_dir: Path, job: dict, stream) -> None:
     from algorithms.config import AlgoConfig
-    from harness.run_folder import read_config
+    from harness.run_folder import address, read_config
     from harness.train import evaluate, resume, train
 
     ev = job["eval"]
     if _training_complete(run_dir, job["epochs"]) and (not ev["seeds"] or _evaluated(run_dir, ev)):
         print(f"{run_dir.name}: already finished (by another worker)", file=stream, flush=True)
         return
-    if (run_dir / "config.json").is_file():
+    if (run_dir / CONFIG).is_file():
         config = read_config(run_dir)
-        recorded = {k: config[k] for k in ("task", "backend", "seed", "device", "epochs")}
-        recorded["algo"] = config["algo_config"].as_dict()
-        recorded["physics"] = config.get("physics_record")
-        if config.get("backend_options"):
-            recorded["backend_options"] = config["backend_options"]
-        if config.get("gradients"):
-            recorded["gradients"] = config["gradients"]
-        if _hash(recorded) != job["key"]:
+        if _hash(address(config)) != job["key"]:
             raise RunError(f"{run_dir}: config.json does not match the planned run (job.json): move the folder away")
         if not _training_complete(run_dir, job["epochs"]):
             resume(run_dir, command="python -m harness bench-run " + str(run_dir), stream=stream)
@@ -354,14 +360,14 @@ def run_suite(
     name = data["suite"]["name"]
     # absolute: a Ray worker on another node resolves the same path on the shared storage
     store = Path(store).resolve() / name
-    problem = path_problem(store / "runs" / "config.json")  # where the deepest files go
+    problem = path_problem(store / "runs" / CONFIG)  # where the deepest files go
     if problem:
         raise RunError(f"the store {store}: {problem}")
     all_jobs = plan(data, store)
     workers = jobs or int(data["suite"].get("jobs", 1))
     if dry_run:
         for job in all_jobs:
-            status = "done" if job.is_done() else ("resume" if (job.output.parent / "config.json").exists() else "new")
+            status = "done" if job.is_done() else ("resume" if (job.output.parent / CONFIG).exists() else "new")
             print(f"{status:6s} ~{duration(job.estimate_s):>8s}  {job.label}", file=stream)
         total = sum(j.estimate_s for j in all_jobs if not j.is_done())
         print(f"{len(all_jobs)} jobs; about {duration(total / max(workers, 1))} on {workers} workers", file=stream)
@@ -370,6 +376,7 @@ def run_suite(
         problem = memory_problem(all_jobs, workers, data["suite"].get("device", "cpu")) if launcher == "local" else None
         if problem:
             raise RunError(f"{spec_path}: {problem}")
+        _move_damaged_runs(all_jobs, stream)
         runner = make_launcher(
             launcher, jobs if launcher == "ray" else workers, address, data["suite"].get("device", "cpu"), gpus_per_run
         )
@@ -380,7 +387,43 @@ def run_suite(
     else:
         for job in all_jobs:
             job.state = "reused" if job.is_done() else "pending"
+        if not any(job.state == "reused" for job in all_jobs):
+            damaged = _damaged_outputs(all_jobs)
+            raise RunError(
+                f"nothing to report in {store}: none of its {len(all_jobs)} jobs has finished"
+                + (f" ({len(damaged)} damaged: {'; '.join(damaged)})" if damaged else "")
+                + "; run the same command without --report-only"
+            )
     return _finish(data, spec_path, store, all_jobs, command, stream)
+
+
+def _move_damaged_runs(jobs: list[Job], stream) -> None:
+    """A run folder whose config.json is damaged is named and moved aside (``NAME.damaged-N``, nothing
+    deleted), so its job makes the run again rather than fail on it or pass it over."""
+    for job in jobs:
+        problem = damage(job.run_dir) if job.kind == "train" else None
+        if problem is None:
+            continue
+        n = 1
+        while job.run_dir.with_name(f"{job.run_dir.name}.damaged-{n}").exists():
+            n += 1
+        aside = job.run_dir.rename(job.run_dir.with_name(f"{job.run_dir.name}.damaged-{n}"))
+        print(f"damaged run: {problem}; moved to {aside.name}, its run is made again", file=stream, flush=True)
+
+
+def _damaged_outputs(jobs: list[Job]) -> list[str]:
+    """The finished-looking outputs a report cannot read: run folders with a damaged config.json and
+    check files that are not whole JSON, one line each."""
+    lines = [damage(j.run_dir) for j in jobs if j.kind == "train" and damage(j.run_dir) is not None]
+    for job in jobs:
+        if job.kind in CHECK_KINDS and job.output.exists():
+            try:
+                whole = isinstance(json.loads(job.output.read_text()), dict)
+            except (OSError, ValueError):
+                whole = False
+            if not whole:
+                lines.append(f"{job.output}: not a whole check file; made again by the next bench")
+    return lines
 
 
 def _finish(data: dict, spec_path: Path, store: Path, jobs: list[Job], command: str | None, stream) -> int:
@@ -388,12 +431,11 @@ def _finish(data: dict, spec_path: Path, store: Path, jobs: list[Job], command: 
     from harness.results import harness_command, provenance, shown_path, write_json
 
     name = data["suite"]["name"]
-    runs = [j.run_dir for j in jobs if j.kind == "train" and (j.run_dir / "config.json").is_file()]
+    runs = [j.run_dir for j in jobs if j.kind == "train" and (j.run_dir / CONFIG).is_file()]
     checks = [j.output for j in jobs if j.kind in CHECK_KINDS and j.output.is_file()]
     out_dir = store
     made_by = provenance(command)
     header = {**made_by, "profile": name, "spec": shown_path(spec_path)}
-    written = write_bench_report(runs, checks, out_dir, header)
     failed = [j for j in jobs if j.state in ("failed", "skipped")]
     missing = [j for j in jobs if j.state == "pending"]
     status = {
@@ -411,12 +453,20 @@ def _finish(data: dict, spec_path: Path, store: Path, jobs: list[Job], command: 
         ],
         "provenance": made_by,
     }
-    written.append(write_json(out_dir / "jobs.json", status))
+    written = write_bench_report(
+        runs, checks, out_dir, header, also=lambda folder: [write_json(folder / "jobs.json", status)]
+    )
     print(f"\n[bench {name}] wrote {len(written)} files in {out_dir}:", file=stream)
     for path in written:
         print(f"  {path}", file=stream)
     if missing:
         print(f"[bench {name}] {len(missing)} job(s) not run yet: run the same command again", file=stream)
+    damaged = _damaged_outputs(jobs)
+    if damaged:
+        print(f"[bench {name}] {len(damaged)} damaged file(s) left out of the tables:", file=stream)
+        for line in damaged:
+            print(f"  {line}", file=stream)
+        return 1
     if failed:
         print(f"[bench {name}] {len(failed)} job(s) failed or skipped (logs in {store / 'logs'}):", file=stream)
         for job in failed:

@@ -150,7 +150,7 @@ def _algos() -> list[str]:
 
 
 def _check_kinds() -> list[str]:
-    from harness.bench import CHECK_KINDS
+    from harness.check_kinds import CHECK_KINDS
 
     return list(CHECK_KINDS)
 

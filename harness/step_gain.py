@@ -40,10 +40,9 @@ import torch
 from algorithms.actor_critic import FirstOrderActorCritic
 from harness.envs import make_env, run_task
 from harness.results import RunError, provenance, write_json
-from harness.run_folder import CHECKPOINT, open_run
+from harness.run_folder import CHECKPOINT, STEP_GAIN, open_run
 from harness.train import load_checkpoint
 
-STEP_GAIN = "step_gain.json"
 #: the quantile of the per-state gains the verdict reads (docs/statistics.md, Proposition 1)
 QUANTILE = 0.95
 #: the lambda of the paper's TD variants, whose bound the verdict reads

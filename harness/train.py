@@ -39,14 +39,14 @@ import backends
 from algorithms.actor_critic import FirstOrderActorCritic
 from algorithms.config import AlgoConfig
 from backends.contract import BackendError
-from harness.claims import process_alive
 from harness.envs import make_env, run_task
+from harness.folder_claims import process_alive
 from harness.progress import ProgressLine, duration
 from harness.results import (
     RunError,
     RunStopped,
     atomic_write_text,
-    path_problem,
+    out_problem,
     provenance,
     read_metrics,
     slow_write_for_tests,
@@ -56,16 +56,18 @@ from harness.run_folder import (
     CHECKPOINT,
     CONFIG,
     INIT_CHECKPOINT,
+    METRICS,
     check_here,
+    evaluation_file,
     open_run,
     read_checkpoint,
     read_config,
     run_identity,
+    upgrade_notes,
 )
 from harness.tensorboard import FOLDER as TENSORBOARD_FOLDER
 from harness.tensorboard import EpochScalars
 
-METRICS = "metrics.jsonl"
 # metrics that measure time, not the run: everything else is equal between a resumed and an uninterrupted run
 WALL_TIME_FIELDS = (
     "wall_s",
@@ -104,7 +106,7 @@ def save_checkpoint(path: Path, algo: FirstOrderActorCritic, env, progress: dict
         "progress": progress,
         "run": run,
     }
-    # a name of this writer's own: a worker presumed dead (harness/claims.py) never shares a half-written file
+    # a name of this writer's own: a worker presumed dead (harness/folder_claims.py) never shares a half-written file
     tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
     with tmp.open("wb") as fh:
         torch.save(payload, fh)
@@ -131,7 +133,7 @@ def _apply_checkpoint(payload: dict, algo: FirstOrderActorCritic, env=None) -> d
     return payload["progress"]
 
 
-class _Progress:
+class _EpochProgress:
     """Training's progress bar: epochs done, return, lambda, rate and ETA (:class:`harness.progress.ProgressLine`)."""
 
     def __init__(self, total: int, start: int, stream=None):
@@ -205,14 +207,10 @@ class _SignalStop:
 
 def check_output_dir(out: str | Path) -> Path:
     """Refuse an output path that cannot hold a new run, before any work starts (one-line RunError)."""
-    if str(out).strip() == "":
-        raise RunError("--out is empty: name a directory for the run")
-    path = Path(out)
-    problem = path_problem(path / CONFIG)
+    problem = out_problem(out, "folder")
     if problem:
-        raise RunError(f"--out {out}: {problem}")
-    if path.exists() and not path.is_dir():
-        raise RunError(f"--out {out} is an existing file, not a directory")
+        raise RunError(problem)
+    path = Path(out)
     if (path / CONFIG).exists():
         raise RunError(f"{out} already holds a run; continue it with --resume {out} or choose another --out")
     try:
@@ -273,6 +271,8 @@ def resume(
         raise RunError(f"--epochs {epochs} is fewer than the run's planned {config['epochs']}; give a larger total")
     # a torn, foreign or unreadable checkpoint or metrics file is refused before anything is written
     source = _resume_source(run_dir, config)
+    for note in upgrade_notes(config):
+        print(f"{run_dir.name}: {CONFIG} was written by an older version: {note}", file=stream, flush=True)
     algo_config = config.pop("algo_config")
     read_metrics(run_dir / METRICS)
     _remove_stale_checkpoint_temps(run_dir, stream)
@@ -301,23 +301,13 @@ def _resume_source(run_dir: Path, config: dict) -> tuple[Path, dict] | None:
     return None
 
 
-def _run(
-    run_dir: Path,
-    config: dict,
-    algo_config: AlgoConfig,
-    checkpoint_every: int,
-    stream,
-    source: tuple[Path, dict] | None = None,
-) -> Path:
-    """Train from ``source`` (a resume's checkpoint path and contents), or from the start if None."""
-    from tasks import make_task
-
-    task, backend, seed, device, epochs = (config[k] for k in ("task", "backend", "seed", "device", "epochs"))
-    config_path, metrics_path, ckpt_path = run_dir / CONFIG, run_dir / METRICS, run_dir / CHECKPOINT
-    task_spec = make_task(task, preset=config.get("preset"))
+def _record_physics(run_dir: Path, config: dict, task_spec, resuming: bool) -> None:
+    """Write the physics and the gradient settings a run is made with into ``config``; on a resume,
+    refuse when this installation would make either differently (the run would change meaning)."""
+    task, backend = config["task"], config["backend"]
     config.setdefault("physics", dataclasses.asdict(task_spec.physics))
     current = json.loads(json.dumps(task_spec.physics_record()))  # as config.json holds it
-    if source is not None and config.get("physics_record") != current:
+    if resuming and config.get("physics_record") != current:
         made = (config.get("physics_record") or {}).get("preset", "a physics from before physics presets")
         raise RunError(
             f"{run_dir} was made with {made}, task {task!r} now runs preset {current['preset']} "
@@ -330,13 +320,95 @@ def _run(
         gradients = json.loads(json.dumps(backends.get(backend).gradient_settings(task_spec, options)))
     except ValueError as exc:  # a bad --backend-option value
         raise RunError(f"{backend} options {options}: {exc}") from None
-    if source is not None and config.get("gradients", {}).get(backend, gradients) != gradients:
+    if resuming and config.get("gradients", {}).get(backend, gradients) != gradients:
         raise RunError(
             f"{run_dir} was trained with {backend} gradient settings {config['gradients'][backend]}, this "
             f"installation makes {gradients}: continuing would change the gradients mid-run; start a new run"
         )
     if gradients:
         config["gradients"] = {backend: gradients}
+
+
+def _print_cost(env, backend: str, horizon: int, epochs_to_go: int, stream) -> None:
+    """Finite-difference gradients: say what this run will cost before it starts."""
+    cost = env.sim.gradient_step_cost()
+    if cost is None:
+        return
+    per_epoch = cost["seconds_per_step"] * horizon
+    print(
+        f"cost estimate ({backend}, measured on {cost['sample_worlds']} worlds in {cost['sample_seconds']:.1f} s): "
+        f"{duration(cost['seconds_per_step'])} per control step with gradients "
+        f"({cost['worlds_per_step']} worlds), "
+        f"{duration(per_epoch)} per epoch of {horizon} steps, "
+        f"{duration(per_epoch * epochs_to_go)} for the {epochs_to_go} epochs to go (simulation only)",
+        file=stream,
+        flush=True,
+    )
+
+
+def _epoch_row(algo, progress: dict, metrics: dict, elapsed: float) -> dict:
+    """Count an epoch into ``progress`` and return its metrics.jsonl row."""
+    progress["env_steps"] += algo.cfg.num_envs * algo.cfg.horizon
+    progress["wall_s"] += elapsed
+    recent = (progress["recent_returns"] + [metrics["train_episode_return"]])[-20:]
+    progress["recent_returns"] = [r for r in recent if r is not None]
+    returns = progress["recent_returns"]
+    return {
+        "epoch": algo.epoch - 1,
+        "env_steps": progress["env_steps"],
+        "wall_s": progress["wall_s"],
+        "epoch_s": elapsed,
+        **metrics,
+        "train_episode_return_avg": sum(returns) / len(returns) if returns else None,
+    }
+
+
+def _epochs(run_dir, algo, env, progress, identity, epochs, checkpoint_every, stop, stream) -> None:
+    """The training loop: epochs until ``epochs`` or a signal, each row to metrics.jsonl, TensorBoard and
+    the progress line, a checkpoint every ``checkpoint_every`` epochs, at the end and at a signal."""
+    from backends.contract import NonFiniteStateError
+
+    bar = _EpochProgress(epochs, algo.epoch, stream)
+    scalars = EpochScalars(run_dir, algo.epoch)  # TensorBoard's view of metrics.jsonl
+    try:
+        while algo.epoch < epochs and stop.signum is None:
+            start = time.perf_counter()
+            try:
+                metrics = algo.train_epoch(env)
+            except NonFiniteStateError as exc:  # the simulation blew up: log it, restart episodes
+                progress["nonfinite_events"] += 1
+                print(f"\nwarning: epoch {algo.epoch}: {exc}; resetting all envs", file=stream, flush=True)
+                env.reset()
+                continue
+            row = _epoch_row(algo, progress, metrics, time.perf_counter() - start)
+            _append_metrics(run_dir / METRICS, row)
+            scalars.write(row)
+            bar.update(algo.epoch - 1, row)
+            if algo.epoch % checkpoint_every == 0 or algo.epoch == epochs or stop.signum is not None:
+                save_checkpoint(run_dir / CHECKPOINT, algo, env, progress, identity)
+    except KeyboardInterrupt:  # a second signal mid-epoch: no checkpoint of a half-done epoch
+        print(f"\nstopped now: {run_dir} resumes from its last checkpoint with --resume", file=stream)
+        raise
+    finally:
+        scalars.close()
+
+
+def _run(
+    run_dir: Path,
+    config: dict,
+    algo_config: AlgoConfig,
+    checkpoint_every: int,
+    stream,
+    source: tuple[Path, dict] | None = None,
+) -> Path:
+    """Train from ``source`` (a resume's checkpoint path and contents), or from the start if None."""
+    from tasks import make_task
+
+    task, backend, seed, device, epochs = (config[k] for k in ("task", "backend", "seed", "device", "epochs"))
+    config_path, metrics_path = run_dir / CONFIG, run_dir / METRICS
+    task_spec = make_task(task, preset=config.get("preset"))
+    _record_physics(run_dir, config, task_spec, resuming=source is not None)
+    options = config.get("backend_options") or {}
     torch.manual_seed(seed)
     random.seed(seed)
     # the adapter before config.json: a bad --backend-option is refused with nothing written
@@ -357,65 +429,13 @@ def _run(
         progress = _apply_checkpoint(payload, algo, env)
         _truncate_metrics(metrics_path, algo.epoch)
         print(f"resuming {run_dir} at epoch {algo.epoch}/{epochs} from {path.name}", file=stream, flush=True)
-    cost = env.sim.gradient_step_cost()
-    if cost is not None:  # finite-difference gradients: say what this run will cost before it starts
-        per_epoch = cost["seconds_per_step"] * algo_config.horizon
-        remaining = per_epoch * (epochs - algo.epoch)
-        print(
-            f"cost estimate ({backend}, measured on {cost['sample_worlds']} worlds in {cost['sample_seconds']:.1f} s): "
-            f"{duration(cost['seconds_per_step'])} per control step with gradients "
-            f"({cost['worlds_per_step']} worlds), "
-            f"{duration(per_epoch)} per epoch of {algo_config.horizon} steps, "
-            f"{duration(remaining)} for the {epochs - algo.epoch} epochs to go (simulation only)",
-            file=stream,
-            flush=True,
-        )
-    bar = _Progress(epochs, algo.epoch, stream)
-    scalars = EpochScalars(run_dir, algo.epoch)  # TensorBoard's view of metrics.jsonl
-    from backends.contract import NonFiniteStateError
-
+    _print_cost(env, backend, algo_config.horizon, epochs - algo.epoch, stream)
     with _SignalStop(stream) as stop:
-        try:
-            while algo.epoch < epochs and stop.signum is None:
-                start = time.perf_counter()
-                try:
-                    metrics = algo.train_epoch(env)
-                except NonFiniteStateError as exc:  # the simulation blew up: log it, restart episodes
-                    progress["nonfinite_events"] += 1
-                    print(f"\nwarning: epoch {algo.epoch}: {exc}; resetting all envs", file=stream, flush=True)
-                    env.reset()
-                    continue
-                elapsed = time.perf_counter() - start
-                progress["env_steps"] += algo_config.num_envs * algo_config.horizon
-                progress["wall_s"] += elapsed
-                recent = (progress["recent_returns"] + [metrics["train_episode_return"]])[-20:]
-                progress["recent_returns"] = [r for r in recent if r is not None]
-                avg = (
-                    sum(progress["recent_returns"]) / len(progress["recent_returns"])
-                    if progress["recent_returns"]
-                    else None
-                )
-                row = {
-                    "epoch": algo.epoch - 1,
-                    "env_steps": progress["env_steps"],
-                    "wall_s": progress["wall_s"],
-                    "epoch_s": elapsed,
-                    **metrics,
-                    "train_episode_return_avg": avg,
-                }
-                _append_metrics(metrics_path, row)
-                scalars.write(row)
-                bar.update(algo.epoch - 1, row)
-                if algo.epoch % checkpoint_every == 0 or algo.epoch == epochs or stop.signum is not None:
-                    save_checkpoint(ckpt_path, algo, env, progress, identity)
-        except KeyboardInterrupt:  # a second signal mid-epoch: no checkpoint of a half-done epoch
-            print(f"\nstopped now: {run_dir} resumes from its last checkpoint with --resume", file=stream)
-            raise
-        finally:
-            scalars.close()
+        _epochs(run_dir, algo, env, progress, identity, epochs, checkpoint_every, stop, stream)
     if stop.signum is not None and algo.epoch < epochs:
         raise RunStopped(run_dir, algo.epoch, stop.signum)
-    names = [p.name for p in (config_path, metrics_path, ckpt_path, run_dir / INIT_CHECKPOINT) if p.exists()]
+    paths = (config_path, metrics_path, run_dir / CHECKPOINT, run_dir / INIT_CHECKPOINT)
+    names = [p.name for p in paths if p.exists()]
     names.append(f"{TENSORBOARD_FOLDER}/ (tensorboard --logdir {run_dir})")
     print(f"wrote {run_dir}: {', '.join(names)}", file=stream, flush=True)
     return run_dir
@@ -435,7 +455,7 @@ def evaluate(
 
     ``backend``: evaluate on another engine than the run trained on (sim-to-sim: the same task, eval
     protocol and policy; the observation statistics travel with the checkpoint). Written to
-    ``eval_on_<backend>.json`` instead of ``eval.json``, unless ``out`` names the file.
+    ``sim2sim_on_<backend>.json`` instead of ``eval.json``, unless ``out`` names the file.
     """
     stream = stream or sys.stdout  # the stdout of now, not of import time
     run_dir = Path(run_dir)
@@ -515,11 +535,6 @@ def evaluate(
         **results,
         "provenance": provenance(),
     }
-    written = write_json(Path(out) if out else run_dir / eval_file_name(backend, trained_on), payload)
+    written = write_json(Path(out) if out else run_dir / evaluation_file(backend, trained_on), payload)
     print(f"wrote {written}", file=stream, flush=True)
     return payload
-
-
-def eval_file_name(backend: str, trained_on: str) -> str:
-    """``eval.json`` on the training backend, ``eval_on_<backend>.json`` on another (sim-to-sim)."""
-    return "eval.json" if backend == trained_on else f"eval_on_{backend}.json"

@@ -275,6 +275,39 @@ RUN_VERBS = {
     "render": ["render", "--run", "RUN", "--max-steps", "2"],
     "grad-growth": ["grad-growth", "--run", "RUN", "--variant", "contact_ke=1e4"],
 }
+CLI_CASES += [  # a flag that takes one value, given twice: refused rather than the last one kept
+    ("train given --resume twice", ["train", "--resume", "RUN", "--resume", "RUN"], None, "--resume given twice"),
+    ("gradcheck given --backend twice", ["gradcheck", *ANT, "--backend", "newton"], None, "--backend given twice"),
+    ("render given --compare twice", ["render", "--run", "RUN", "--compare", "--compare"], None, "given twice"),
+    (
+        "parity given --backends twice",
+        ["parity", "--task", "ant", "--backends", "newton", "--backends", "x"],
+        None,
+        "--backends given twice",
+    ),
+]
+CLI_CASES += [  # adapter options that cannot mean anything: refused when the adapter is built, before any write
+    ("a NaN contact gap", ["gradcheck", *ANT, "--backend-option", "contact_gap=nan"], None, "contact_gap must be"),
+    (
+        "a negative contact gap",
+        ["gradcheck", *ANT, "--backend-option", "contact_gap=-0.1"],
+        None,
+        "contact_gap must be",
+    ),
+    (
+        "a fractional refresh interval",
+        ["gradcheck", *ANT, "--backend-option", "mass_matrix_every=1.5"],
+        None,
+        "an integer",
+    ),
+    (
+        "no contact rows on mujoco_warp",
+        ["gradcheck", "--backend", "mujoco_warp", "--task", "ant", "--backend-option", "nconmax=0"],
+        None,
+        "nconmax must be",
+    ),
+]
+DELETE = object()  # a config.json field removed, as a version that did not write it left it
 FOLDER_DAMAGES = [  # (what, config.json fields changed (dotted: nested), what the refusal says)
     ("fractional seed", {"seed": 1.5}, "seed is 1.5, not an integer"),
     ("text seed", {"seed": "abc"}, "seed is 'abc'"),
@@ -295,6 +328,11 @@ FOLDER_DAMAGES = [  # (what, config.json fields changed (dotted: nested), what t
     ("no task", {"task": None}, "task is None"),
     ("anonymous checkpoints, another task", {"task": "go2", "physics_record.preset": "project", "_anon": 1}, "(12,)"),
     ("anonymous checkpoints, more envs", {"algo.num_envs": 8, "_anon": 1}, "env state has 4 envs"),
+    # written by another version: refused where today's defaults would fill what the run never had
+    ("a hyperparameter it lacks", {"algo.critic_iterations": DELETE}, "has no hyperparameter critic_iterations"),
+    ("a physics constant it lacks", {"physics.contact_ke": DELETE}, "has no physics constant contact_ke"),
+    ("a physics constant unknown here", {"physics.bogus": 1.0}, "physics constant(s) bogus this version does not"),
+    ("no physics preset recorded", {"preset": DELETE}, "records no physics preset"),
 ]
 LONG = "n" * 300  # longer than any common file system's name limit (255 bytes)
 DEEP = "/".join(["d" * 200] * 25)  # a path longer than PATH_MAX (4096)
@@ -335,7 +373,10 @@ def _edit_config(run: Path, fields: dict) -> None:
         node = config
         for parent in parents:
             node = node[parent]
-        node[key] = value
+        if value is DELETE:
+            del node[key]
+        else:
+            node[key] = value
     (run / "config.json").write_text(json.dumps(config))
 
 
@@ -392,6 +433,23 @@ def test_checkpoints_record_their_run_and_a_matching_folder_opens(template):
         recorded = torch.load(template / name, weights_only=False)["run"]
         assert recorded == {"task": "ant", "backend": "newton", "seed": 0, "algo": "shac", "num_envs": 4, "horizon": 4}
     assert config["algo_config"].num_envs == 4
+
+
+def test_resuming_an_older_config_says_what_it_read_under_todays_names(template, tmp_path, capsys):
+    """An older config.json whose meaning carries over (a renamed physics constant, a hyperparameter
+    that was never read) is upgraded explicitly: the resume names each change before it continues."""
+    import json
+
+    run = tmp_path / "run"
+    shutil.copytree(template, run)
+    config = json.loads((run / "config.json").read_text())
+    config["physics"]["pd_ke"] = config["physics"].pop("pd_kp")
+    config["algo"]["extra"] = {}
+    (run / "config.json").write_text(json.dumps(config))
+    assert main(["train", "--resume", str(run), "--epochs", "3"]) == 0
+    out = capsys.readouterr().out
+    assert "written by an older version: physics constant pd_ke read as pd_kp (renamed)" in out, out
+    assert "hyperparameter 'extra' dropped (never read)" in out, out
 
 
 def test_the_corpus_is_at_least_forty_cases():

@@ -534,3 +534,72 @@ def test_results_show_a_spec_inside_the_repository_by_its_relative_path(tmp_path
     recorded = harness_command(["gradcheck", "--task", "ant", "--out", str(out), "--spec", str(elsewhere)])
     shown_out = Path("store", "checks", "gradcheck.json")
     assert recorded == f"python -m harness gradcheck --task ant --out {shown_out} --spec {elsewhere}"
+
+
+@POINTMASS
+def test_a_killed_report_phase_leaves_the_previous_set_whole(tmp_path):
+    """A report phase killed while it writes leaves the tables, plots, index.md and jobs.json of the
+    report before it, byte for byte (the new set is staged aside); the next report discards the stage
+    and puts a whole new set in place."""
+    import signal
+    import time
+
+    spec = _write(
+        tmp_path, POINTMASS_SPEC.replace("seeds = [0, 1]", "seeds = [0]").replace("horizons = [4, 8]", "horizons = [4]")
+    )
+    store = tmp_path / "store"
+    command = [sys.executable, "-m", "harness", "bench", "--spec", str(spec), "--store", str(store)]
+    first = subprocess.run(command, capture_output=True, text=True, env=_env(), timeout=600)
+    assert first.returncode == 0, first.stdout[-2000:] + first.stderr[-2000:]
+    folder = store / "pm"
+    before = {p.name: p.read_bytes() for p in folder.iterdir() if p.is_file()}
+    assert {"index.md", "returns.md", "returns.csv", "jobs.json"} <= set(before)
+    slow = _env() | {"DIFFSIM_BENCH_TEST_WRITE_DELAY": "1"}  # every staged file stays half-written a second
+    proc = subprocess.Popen(
+        [*command, "--report-only"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=slow
+    )
+    stage = folder / f".report-staging-{proc.pid}"
+    deadline = time.time() + 300
+    while time.time() < deadline and proc.poll() is None:
+        if stage.is_dir() and len(list(stage.iterdir())) >= 3:
+            break
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143, out[-2000:] + err[-2000:]
+    assert {p.name: p.read_bytes() for p in folder.iterdir() if p.is_file()} == before
+    again = subprocess.run([*command, "--report-only"], capture_output=True, text=True, env=_env(), timeout=600)
+    assert again.returncode == 0, again.stdout[-2000:] + again.stderr[-2000:]
+    assert not stage.exists() and set(before) <= {p.name for p in folder.iterdir() if p.is_file()}
+
+
+def test_a_swap_cut_short_is_finished_by_the_next_report(tmp_path):
+    """A writer killed outright between the moves of a swap leaves its journal; recovering finishes the
+    moves and removals, so the folder holds the new set alone. A dead writer's stage without a journal
+    is an unfinished report: discarded, the set in place stands. A live writer's stage is left alone."""
+    from harness.report import swap
+
+    out = tmp_path / "report"
+    out.mkdir()
+    for name in ("a.md", "b.md", "old_plot.png"):
+        (out / name).write_text("old " + name)
+    (out / swap.SET).write_text(json.dumps(["a.md", "b.md", "old_plot.png"]))
+    dead = "999999999"  # no such process
+    staged = out / f"{swap.STAGE}{dead}"
+    staged.mkdir()
+    for name in ("a.md", "b.md"):
+        (staged / name).write_text("new " + name)
+    # as a kill after the journal and the first move leaves it
+    (out / f"{swap.JOURNAL}{dead}.json").write_text(json.dumps({"move": ["a.md", "b.md"], "remove": ["old_plot.png"]}))
+    (staged / "a.md").replace(out / "a.md")
+    live = out / f"{swap.STAGE}{os.getppid()}"  # a report being written by a process that runs
+    live.mkdir()
+    assert "finished the swap" in swap.recover(out)
+    assert {p.name: p.read_text() for p in out.iterdir() if not p.name.startswith(".")} == {
+        "a.md": "new a.md",
+        "b.md": "new b.md",
+    }
+    assert not staged.exists() and not list(out.glob(f"{swap.JOURNAL}*")) and live.is_dir()
+    staged.mkdir()
+    (staged / "a.md").write_text("half")
+    assert "discarded" in swap.recover(out) and (out / "a.md").read_text() == "new a.md" and not staged.exists()

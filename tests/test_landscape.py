@@ -16,10 +16,10 @@ from algorithms.returns import actor_loss_from_returns, h_step_returns, segment_
 from harness.landscape import (
     compute_landscape,
     filter_normalised_directions,
-    plot_landscape,
     roughness,
     write_landscape,
 )
+from harness.report.plots import plot_landscape
 from harness.results import RunError
 
 

@@ -121,3 +121,28 @@ def test_a_soft_frame_draws_the_meshs_surface():
     assert len(scene.surface) < 4 * task.soft_body.num_tets  # boundary faces only
     lifted = scene.frame(rest + np.array([0.0, 0.0, 0.5]))
     assert np.abs(lifted.astype(int) - image.astype(int)).sum() > 0  # a moved body is drawn elsewhere
+
+
+def test_a_killed_render_leaves_no_video_and_a_rerun_clears_what_older_ones_left(run):
+    """SIGTERM while the video is written: exit 143, no file with a video extension and no partial video
+    in the run folder. What earlier interrupted renders left (a partial video of a writer that is gone,
+    an older version's ``tmpXXXXXXXX.mp4``) is removed by the next render, and nothing else."""
+    import signal
+    import time
+
+    (run / "tmpab12cd34.mp4").write_bytes(b"half a video")
+    (run / ".render_newton.mp4.999999999.part").write_bytes(b"half a video")  # no such process
+    (run / "notes.mp4").write_bytes(b"the user's own")  # not a name a render writes: kept
+    command = [sys.executable, "-m", "harness", "render", "--run", str(run), "--max-steps", "4", "--frames", "2"]
+    env = _env() | {"DIFFSIM_BENCH_TEST_WRITE_DELAY": "60"}  # the partial video waits a minute for its rename
+    proc = subprocess.Popen(command, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 300
+    while time.time() < deadline and proc.poll() is None and not list(run.glob(f".render_newton.mp4.{proc.pid}.part")):
+        time.sleep(0.1)
+    assert proc.poll() is None, proc.communicate()
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143 and "stopped: SIGTERM" in err, out[-2000:] + err[-2000:]
+    assert "removed tmpab12cd34.mp4" in out and "removed .render_newton.mp4.999999999.part" in out, out
+    left = sorted(p.name for p in run.iterdir() if ".mp4" in p.name or p.name.endswith(".part"))
+    assert left == ["notes.mp4"], left

@@ -59,6 +59,66 @@ def test_engines_are_imported_only_inside_their_adapter_packages():
     assert not {m.split(".")[0] for m in _imports(ROOT / "simcore.py")} & engines
 
 
+def _harness_import_graph() -> dict[str, set[str]]:
+    """Module -> the harness modules it imports anywhere (inside functions too: a lazy import still
+    ties the two modules together), a package's ``__init__`` counted as the package."""
+    paths = {}
+    for path in _modules("harness"):
+        parts = path.relative_to(ROOT).with_suffix("").parts
+        paths[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    graph = {}
+    for name, path in paths.items():
+        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        targets = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                targets.update(alias.name for alias in node.names)
+            elif isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:
+                    up = package.split(".")[: len(package.split(".")) - node.level + 1]
+                    base = ".".join(up + ([node.module] if node.module else []))
+                targets.add(base)
+                targets.update(f"{base}.{alias.name}" for alias in node.names)
+        graph[name] = {t for t in targets if t in paths and t != name}
+    return graph
+
+
+def test_the_harness_has_no_import_circle():
+    """Every harness module can be read knowing only the modules below it: no chain of imports, lazy
+    ones included, returns to where it started."""
+    graph = _harness_import_graph()
+    assert "harness.bench" in graph["harness.runner"]  # the graph sees real edges
+    done: set[str] = set()
+
+    def visit(name: str, path: list[str]) -> None:
+        if name in path:
+            cycle = path[path.index(name) :] + [name]
+            pytest.fail("import circle: " + " -> ".join(cycle))
+        if name in done:
+            return
+        for target in sorted(graph[name]):
+            visit(target, path + [name])
+        done.add(name)
+
+    for name in sorted(graph):
+        visit(name, [])
+
+
+def test_no_function_in_the_harness_or_the_adapters_is_over_100_lines():
+    """A function a person can hold in their head: the harness's and the adapters' functions stay under
+    101 lines, docstring and comments included."""
+    long = []
+    for package in ("harness", "backends"):
+        for path in _modules(package):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                    lines = node.end_lineno - node.lineno + 1
+                    if lines > 100:
+                        long.append(f"{path.relative_to(ROOT)}:{node.lineno} {node.name} ({lines} lines)")
+    assert not long, "; ".join(long)
+
+
 def test_the_pd_law_is_specified_once_in_the_physics_spec():
     spec = simcore.PhysicsSpec(pd_kp=30.0, pd_kd=0.5, torque_limits=(23.7, 45.43))
     target = torch.tensor([[1.0, 0.0], [0.01, 0.0]])

@@ -104,6 +104,7 @@ step 1e-2.
 
 from __future__ import annotations
 
+import math
 from xml.etree import ElementTree
 
 import mujoco
@@ -112,7 +113,7 @@ import torch
 import warp as wp
 
 from backends._warp import option_flag, warp_device
-from backends.contract import BackendError, BatchedSim, inert_by_definition
+from backends.contract import BackendError, BatchedSim, inert_by_definition, option_number
 from backends.mujoco_warp.adjoint.step import control_step_vjp
 from backends.mujoco_warp.adjoint.tree import rigid_tree
 from backends.mujoco_warp.penalty import IMPEDANCE, apply_penalty_constants
@@ -255,8 +256,10 @@ def fd_settings(task, options: dict) -> dict:
             raise ValueError(f"fd_warmstart must be zero or nominal, got {settings['fd_warmstart']!r}")
         if settings["fd_tolerance"] is not None and not settings["fd_tolerance"] >= 0:
             raise ValueError(f"fd_tolerance must be >= 0, got {tolerance!r}")
-    for name in ("fd_eps_state", "fd_eps_velocity", "fd_eps_control"):
-        if name in settings and not settings[name] > 0:
+    for name in ("fd_eps_state", "fd_eps_velocity", "fd_eps_control", "fd_tolerance"):
+        if settings.get(name) is not None and not (math.isfinite(settings[name]) and settings[name] >= 0):
+            raise ValueError(f"{name} must be a finite number >= 0, got {settings[name]!r}")
+        if name != "fd_tolerance" and name in settings and not settings[name] > 0:
             raise ValueError(f"{name} must be positive, got {settings[name]!r}")
     return settings
 
@@ -308,11 +311,9 @@ class MujocoWarpSim(BatchedSim):
         for name, value in (settings or fd_settings(task, {})).items():
             setattr(self, name, value)  # the adjoint keeps the defaults, unused, so fd_jacobians stays callable
         self.position_control = task.control_kind == ControlKind.JOINT_POSITION_TARGET
-        self.fd_chunk_envs = int(self.options.get("fd_chunk_envs", self.num_envs))
-        self.nconmax = int(self.options.get("nconmax", 32))
-        self.njmax = int(self.options.get("njmax", 160))
-        if self.fd_chunk_envs < 1 or self.nconmax < 1 or self.njmax < 1:
-            raise ValueError("fd_chunk_envs, nconmax and njmax must be >= 1")
+        self.fd_chunk_envs = option_number(self.options, "fd_chunk_envs", self.num_envs, self.name, 1, integer=True)
+        self.nconmax = option_number(self.options, "nconmax", 32, self.name, 1, integer=True)
+        self.njmax = option_number(self.options, "njmax", 160, self.name, 1, integer=True)
 
         self.mjm = build_spec(task).compile()
         layout = task.layout
@@ -351,7 +352,7 @@ class MujocoWarpSim(BatchedSim):
         self.gradients, self.tree = "fd", None
         for name, value in fd_settings(task, self.options).items():
             setattr(self, name, value)
-        self.fd_chunk_worlds = int(self.options.get("fd_chunk_worlds", 256))
+        self.fd_chunk_worlds = option_number(self.options, "fd_chunk_worlds", 256, self.name, 1, integer=True)
         self.nconmax = int(self.options.get("nconmax", 128))
         self.njmax = int(self.options.get("njmax", 512))
         if self.fd_chunk_worlds < 1 or self.nconmax < 1 or self.njmax < 1:

@@ -26,7 +26,7 @@ from __future__ import annotations
 import torch
 
 from backends._warp import option_flag, warp_device
-from backends.contract import BackendError, BatchedSim, inert_by_definition
+from backends.contract import BackendError, BatchedSim, inert_by_definition, option_number
 from backends.newton.articulation import FeatherstoneArticulation, SemiImplicitArticulation
 from backends.newton.bare import bare_tape_rollout
 from backends.newton.family import EngineFamily
@@ -76,7 +76,8 @@ class NewtonSim(BatchedSim):
 
     # -- construction ---------------------------------------------------------------------
     def _build(self) -> None:
-        contact_gap = float(self.options.get("contact_gap", 0.05))
+        # a candidate window of at most a metre: past it every pair of the scene is a candidate
+        contact_gap = option_number(self.options, "contact_gap", 0.05, self.name, low=0.0, high=1.0)
         solver = self.options.get("solver", "semi_implicit")
         if solver not in self.SOLVERS:
             raise BackendError(f"newton solver must be one of {', '.join(self.SOLVERS)}, got {solver!r}")

@@ -27,7 +27,7 @@ import numpy as np
 import torch
 import warp as wp
 
-from backends.contract import BackendError, BatchedSim
+from backends.contract import BackendError, BatchedSim, option_number
 from backends.newton.family import EngineFamily, semi_implicit_solver
 from backends.newton.joint_control import JointTorques, PositionTargets
 from backends.newton.tape import Frame
@@ -270,8 +270,8 @@ class FeatherstoneArticulation(Articulation):
 
     def make_solver(self, model: newton.Model):
         substeps = self.physics.substeps
-        self.mass_matrix_every = int(self.options.get("mass_matrix_every", substeps))
-        if self.mass_matrix_every < 1 or substeps % self.mass_matrix_every:
+        self.mass_matrix_every = option_number(self.options, "mass_matrix_every", substeps, "newton", 1, integer=True)
+        if substeps % self.mass_matrix_every:
             raise BackendError(
                 f"mass_matrix_every={self.mass_matrix_every} must be a divisor of the {substeps} substeps"
             )

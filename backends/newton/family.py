@@ -16,6 +16,7 @@ import newton
 import torch
 import warp as wp
 
+from backends.contract import option_number
 from simcore import SimState
 
 if TYPE_CHECKING:
@@ -26,9 +27,9 @@ def semi_implicit_solver(model: newton.Model, options: dict) -> newton.solvers.S
     """Newton's symplectic Euler solver with the solver's own defaults, exposed as adapter options."""
     return newton.solvers.SolverSemiImplicit(
         model,
-        angular_damping=float(options.get("angular_damping", 0.05)),
-        joint_attach_ke=float(options.get("joint_attach_ke", 1.0e4)),
-        joint_attach_kd=float(options.get("joint_attach_kd", 1.0e2)),
+        angular_damping=option_number(options, "angular_damping", 0.05, "newton"),
+        joint_attach_ke=option_number(options, "joint_attach_ke", 1.0e4, "newton"),
+        joint_attach_kd=option_number(options, "joint_attach_kd", 1.0e2, "newton"),
     )
 
 

@@ -113,7 +113,7 @@ def _instrument(clock: Clock) -> None:
     clock.wrap(train, "save_checkpoint", "checkpoint (write, fsync, rename)")
     clock.wrap(train, "_append_metrics", "metrics.jsonl row")
     clock.wrap(train.EpochScalars, "write", "TensorBoard events")
-    clock.wrap(train._Progress, "update", "progress line")
+    clock.wrap(train._EpochProgress, "update", "progress line")
 
 
 def _parts(wall: float, s: dict[str, float], row: dict) -> dict[str, float]:

@@ -5,13 +5,10 @@ from __future__ import annotations
 from algorithms.config import ALGORITHMS
 from harness.cli.inputs import (
     BadInput,
-    _check_device,
-    _check_memory,
-    _check_output_file,
-    _check_preset,
-    _make_sim,
-    _validate_names,
+    check_output,
+    make_verb_sim,
     out_stem,
+    preflight,
     sim_physics,
 )
 from harness.results import harness_command
@@ -20,12 +17,10 @@ from harness.results import harness_command
 def cmd_gradcheck(args) -> int:
     from harness.gradcheck import DEFAULT_TOLERANCE, gradcheck
 
-    _validate_names(args.backend, args.task)
-    _check_device(args.device)
-    if args.out:
-        _check_output_file(args.out)
-    _check_memory(args.backend, args.task, args.num_envs, args.steps, args.device)
-    sim = _make_sim(args, horizon=args.steps)
+    preflight(
+        backends=args.backend, task=args.task, device=args.device, out=args.out, memory=(args.num_envs, args.steps)
+    )
+    sim = make_verb_sim(args, horizon=args.steps)
     tolerance = args.tolerance or DEFAULT_TOLERANCE
     start_height = None
     lifted = "root" if sim.layout.floating_base else "lowest particle" if sim.layout.num_particles else None
@@ -70,13 +65,13 @@ def cmd_grad_growth(args) -> int:
 
     from harness.grad_growth import grad_growth, parse_variant
     from harness.results import write_check
-    from harness.run_folder import read_config
+    from harness.run_folder import CHECKPOINT, read_config
 
     read_config(Path(args.run))
-    if not (Path(args.run) / "checkpoint.pt").exists():
+    if not (Path(args.run) / CHECKPOINT).exists():
         raise BadInput(f"{args.run} has no checkpoint.pt")
     if args.out:
-        _check_output_file(args.out)
+        check_output(args.out)
     variants = args.variant or [""]
     try:
         for v in variants:
@@ -92,14 +87,12 @@ def cmd_grad_growth(args) -> int:
 def cmd_grad_paths(args) -> int:
     from harness.grad_paths import grad_paths, table
 
-    _validate_names(args.backend, args.task)
-    _check_device(args.device)
-    _check_preset(args.task, args.preset)
     if args.algo not in ALGORITHMS:
         raise BadInput(f"unknown algorithm {args.algo!r}; choose from: {', '.join(ALGORITHMS)}")
-    if args.out:
-        _check_output_file(args.out)
-    _check_memory(args.backend, args.task, args.num_envs, args.horizon, args.device)
+    memory = (args.num_envs, args.horizon)
+    preflight(
+        backends=args.backend, task=args.task, device=args.device, preset=args.preset, out=args.out, memory=memory
+    )
     print(f"grad-paths {args.algo} on {args.backend}/{args.task}: {args.epochs} epochs, four rollouts of each window")
     try:
         result = grad_paths(
@@ -127,15 +120,9 @@ def cmd_grad_paths(args) -> int:
 def cmd_parity(args) -> int:
     from harness.parity import parity, plot, table
 
-    _validate_names(task=args.task)
-    for name in args.backends:
-        _validate_names(backend=name)
     if len(set(args.backends)) < 2:
         raise BadInput(f"parity compares two different backends, got {' '.join(args.backends)}")
-    if args.out:
-        _check_output_file(args.out)
-    _check_preset(args.task, args.preset)
-    _check_memory(args.backends, args.task, args.num_envs)
+    preflight(backends=args.backends, task=args.task, preset=args.preset, out=args.out, memory=(args.num_envs, 0))
     try:
         result = parity(
             args.task,
@@ -177,12 +164,14 @@ def _write_result_and_table(out: str, kind: str, result: dict, text: str):
 def cmd_contact_jacobians(args) -> int:
     from harness.contact_jacobians import contact_jacobians, table
 
-    _validate_names(args.backend, args.task)
-    _check_device(args.device)
-    if args.out:
-        _check_output_file(args.out)
-    _check_preset(args.task, args.preset)
-    _check_memory(args.backend, args.task, args.num_envs, 1, args.device)
+    preflight(
+        backends=args.backend,
+        task=args.task,
+        device=args.device,
+        preset=args.preset,
+        out=args.out,
+        memory=(args.num_envs, 1),
+    )
     try:
         result = contact_jacobians(
             args.task,
@@ -212,14 +201,9 @@ def cmd_crosscheck(args) -> int:
     from harness.crosscheck import crosscheck, forward_crosscheck
     from harness.results import write_check
 
-    _validate_names(task=args.task)
-    for name in args.backends:
-        _validate_names(backend=name)
     if len(set(args.backends)) < 2 or len(set(args.backends)) != len(args.backends):
         raise BadInput(f"--backends needs two or more different backends to compare, got {' '.join(args.backends)}")
-    if args.out:
-        _check_output_file(args.out)
-    _check_memory(args.backends, args.task, args.num_envs, args.steps)
+    preflight(backends=args.backends, task=args.task, out=args.out, memory=(args.num_envs, args.steps))
     from tasks import task_class
 
     if task_class(args.task).layout.num_particles:  # soft bodies: forward rollouts (module docstring)

@@ -5,14 +5,18 @@ from __future__ import annotations
 
 import dataclasses
 
+from harness.results import RunError, out_problem
+
 EXIT_BAD_INPUT = 2
 
 
-class BadInput(Exception):
-    """User input we refuse: reported as one line, exit code 2."""
+class BadInput(RunError):
+    """User input we refuse: reported as one line, exit code 2. One family with
+    :class:`harness.results.RunError` (a run folder's or a configuration's problem), which
+    ``python -m harness`` reports the same way."""
 
 
-def _validate_names(backend: str | None = None, task: str | None = None) -> None:
+def validate_names(backend: str | None = None, task: str | None = None) -> None:
     import backends
     import tasks
     from simcore import UnknownNameError  # the registries' own message, without loading an entry point
@@ -22,7 +26,7 @@ def _validate_names(backend: str | None = None, task: str | None = None) -> None
             raise BadInput(str(UnknownNameError(kind, name, choices)))
 
 
-def _check_device(device: str) -> None:
+def check_device(device: str) -> None:
     from harness.envs import device_problem
 
     problem = device_problem(device)
@@ -30,7 +34,7 @@ def _check_device(device: str) -> None:
         raise BadInput(problem)
 
 
-def _make_sim(args, horizon: int):
+def make_verb_sim(args, horizon: int):
     # Imports here, not at module level: `list` and argument errors must not load an engine.
     from harness.envs import make_sim
     from tasks import make_task
@@ -43,7 +47,7 @@ def _make_sim(args, horizon: int):
         raise BadInput(f"cannot build {args.backend}/{args.task} on {args.device}: {exc}") from exc
 
 
-def _check_preset(task: str, preset: str | None) -> None:
+def check_preset(task: str, preset: str | None) -> None:
     """Refuse a physics preset the task does not define, in one line naming the ones it does."""
     from tasks import UnknownPresetError, make_task
 
@@ -53,7 +57,7 @@ def _check_preset(task: str, preset: str | None) -> None:
         raise BadInput(str(exc)) from None
 
 
-def _check_memory(
+def check_memory(
     backends: str | list[str], task: str, num_envs: int, horizon: int = 0, device: str = "cpu", flag: str = "--num-envs"
 ) -> None:
     """Refuse ``num_envs`` (with gradients over ``horizon`` steps, 0: none) that cannot fit in this
@@ -66,22 +70,44 @@ def _check_memory(
             raise BadInput(f"{flag} {num_envs}: {problem}")
 
 
-def _check_output_file(out: str) -> None:
-    """A result file (or prefix) we may write: not empty, not a directory, in a writable place."""
-    from pathlib import Path
-
-    from harness.results import path_problem
-
-    if not out.strip():
-        raise BadInput("--out is empty: name a file")
-    problem = path_problem(out)
+def check_output(out: str, kind: str = "file") -> None:
+    """A result file (or prefix of files; ``kind`` "folder": a directory) we may write
+    (:func:`harness.results.out_problem`)."""
+    problem = out_problem(out, kind)
     if problem:
-        raise BadInput(f"--out {out}: {problem}")
-    if Path(out).is_dir():
-        raise BadInput(f"--out {out} is a directory; name a file")
+        raise BadInput(problem)
 
 
-def _algo_config(args, name: str):
+_UNCHECKED = object()
+
+
+def preflight(
+    *,
+    backends: str | list[str] | None = None,
+    task: str | None = None,
+    device: str | None = None,
+    preset=_UNCHECKED,
+    out: str | None = None,
+    memory: tuple[int, int] | None = None,
+) -> None:
+    """The checks a verb declares, run before any work in the order a user would fix them: the backend
+    and task names, the device, the task's physics ``preset``, the output file ``out`` and the
+    ``memory`` of ``(num_envs, horizon)`` (horizon 0: no gradients) on every backend."""
+    names = [backends] if isinstance(backends, str) else list(backends or [])
+    for name in names:
+        validate_names(backend=name)
+    validate_names(task=task)
+    if device is not None:
+        check_device(device)
+    if preset is not _UNCHECKED and task is not None:
+        check_preset(task, preset)
+    if out is not None:
+        check_output(out)
+    if memory is not None:
+        check_memory(names, task, memory[0], memory[1], device or "cpu")
+
+
+def algo_config(args, name: str):
     """The preset ``name`` with every hyperparameter flag the user gave applied (validated once)."""
     from algorithms.config import AlgoConfig, preset
 

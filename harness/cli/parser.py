@@ -26,10 +26,43 @@ from harness.spec_schema import (
     MAX_STEPS,
     MAX_STRIDE,
 )
+from harness.words import parse_option
+
+
+class _Once:
+    """A flag that takes one value, refused when given twice (argparse alone keeps the last, so a
+    pasted-over command line would run with a value the user may not have meant)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        if option_string is not None:
+            if self.dest in parser.given:
+                parser.error(f"{option_string} given twice; give it once")
+            parser.given.add(self.dest)
+        super().__call__(parser, namespace, values, option_string)
+
+
+class _StoreOnce(_Once, argparse._StoreAction):
+    pass
+
+
+class _StoreTrueOnce(_Once, argparse._StoreTrueAction):
+    pass
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse that reports errors as a single line with exit code 2."""
+    """argparse that reports errors as a single line with exit code 2 and refuses a single-value flag
+    given twice."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.given: set[str] = set()
+        self.register("action", None, _StoreOnce)
+        self.register("action", "store", _StoreOnce)
+        self.register("action", "store_true", _StoreTrueOnce)
+
+    def parse_known_args(self, args=None, namespace=None):
+        self.given = set()  # the flags of this command line
+        return super().parse_known_args(args, namespace)
 
     def error(self, message: str):
         raise BadInput(f"{self.prog}: {message}")
@@ -94,28 +127,6 @@ def _finite(text: str) -> float:
     if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
     return value
-
-
-def parse_option(text: str) -> tuple[str, object]:
-    """``KEY=VALUE`` with VALUE read as an int, a float or else a string."""
-    key, sep, value = text.partition("=")
-    if not sep or not key.strip() or not value.strip():
-        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
-    for kind in (int, float):
-        try:
-            return key.strip(), kind(value)
-        except ValueError:
-            pass
-    return key.strip(), value.strip()
-
-
-def physics_words(words: list[str]) -> tuple[str | None, list[str]]:
-    """The physics a command's words name besides the defaults: the ``--preset`` value (None when
-    absent) and every ``--backend-option`` ``KEY=VALUE`` as written. The suite addresses a check by them
-    and the checks table prints them, so both read them here."""
-    preset = words[words.index("--preset") + 1] if "--preset" in words[:-1] else None
-    options = [value for flag, value in zip(words, words[1:], strict=False) if flag == "--backend-option"]
-    return preset, options
 
 
 def _positive_float(text: str) -> float:
@@ -337,9 +348,72 @@ def build_parser() -> argparse.ArgumentParser:
         prog="python -m harness", description="the benchmark's command line (python -m harness VERB --help)"
     )
     sub = parser.add_subparsers(dest="verb", required=True, parser_class=_Parser)
+    for add_verbs in (_run_verbs, _gradient_verbs, _contact_verbs, _engine_verbs, _analysis_verbs):
+        add_verbs(sub)
+    return parser
 
+
+def _run_verbs(sub) -> None:
+    """Training runs and suites: train, evaluate, report, sweep, bench."""
     sub.add_parser("list", help="registered backends and tasks")
 
+    p = sub.add_parser("train", help="train an algorithm; writes config.json, metrics.jsonl, checkpoints")
+    _add(p, "train", "backend", "task", "algo", "num_envs", "horizon", "device", "seed", "epochs", "out")
+    _add(p, "train", "checkpoint_every", "preset", "backend_option")
+    p.add_argument("--resume", metavar="DIR", help="continue the interrupted run in DIR (only --epochs may change)")
+    _hyperparameter_flags(p)
+
+    p = sub.add_parser("eval", help="evaluate a run's final (and initial) policy; writes DIR/eval.json")
+    _add(p, "eval", "run", "eval_seeds", "num_envs", "max_steps", "out", required=("run",))
+    p.add_argument(
+        "--backend",
+        help="adapter name (see `list`): evaluate on this backend instead of the one the run "
+        "trained on (sim-to-sim; default file DIR/sim2sim_on_BACKEND.json)",
+    )
+
+    p = sub.add_parser("report", help="tables (md, csv: per run and mean over seeds) and curves (png)")
+    _add(p, "report", "runs", "out", required=("runs", "out"))
+    p.add_argument("--no-plot", action="store_true")
+
+    p = sub.add_parser("sweep", help="algorithms x seeds of one task and backend: a suite made in memory")
+    names = ("backend", "task", "algos", "seeds", "epochs", "num_envs", "horizon", "device", "eval_seeds", "max_steps")
+    _add(
+        p,
+        "sweep",
+        *names,
+        "out",
+        "jobs",
+        "launcher",
+        "address",
+        "gpus_per_run",
+        required=("backend", "task", "algos", "epochs", "out"),
+    )
+
+    p = sub.add_parser(
+        "bench",
+        help="the benchmark suite: checks, training grid, sim-to-sim, loss landscapes, then tables and plots",
+    )
+    p.add_argument(
+        "--profile",
+        help="smoke (tox -e bench), standard (results/), perf (speed), protocol (the paper's Ant protocol) "
+        "or paper (a cluster's worth)",
+    )
+    p.add_argument("--spec", help="a TOML spec of your own (format: docs/suite.md)")
+    p.add_argument(
+        "--store",
+        default="results/bench",
+        help="runs, checks, logs and tables go to STORE/NAME, NAME the spec's suite name (default: %(default)s)",
+    )
+    _add(p, "bench", "jobs", "launcher", "address", "gpus_per_run", "device")
+    p.add_argument("--dry-run", action="store_true", help="list the jobs, their state and estimated cost; run none")
+    p.add_argument("--report-only", action="store_true", help="write the tables and plots from what is finished")
+
+    p = sub.add_parser("bench-run", help="(used by bench) train or resume one planned run, then evaluate it")
+    p.add_argument("run_dir", help="a run directory planned by bench (holds job.json)")
+
+
+def _gradient_verbs(sub) -> None:
+    """Gradient checks: against finite differences, between engines, along a run's policy."""
     p = sub.add_parser("gradcheck", help="compare autograd gradients with central finite differences")
     _add(
         p,
@@ -368,38 +442,6 @@ def build_parser() -> argparse.ArgumentParser:
         help="with --with-contact: zero-action steps before the checked segment (a robot in stance, a body at rest)",
     )
 
-    p = sub.add_parser("train", help="train an algorithm; writes config.json, metrics.jsonl, checkpoints")
-    _add(p, "train", "backend", "task", "algo", "num_envs", "horizon", "device", "seed", "epochs", "out")
-    _add(p, "train", "checkpoint_every", "preset", "backend_option")
-    p.add_argument("--resume", metavar="DIR", help="continue the interrupted run in DIR (only --epochs may change)")
-    _hyperparameter_flags(p)
-
-    p = sub.add_parser("eval", help="evaluate a run's final (and initial) policy; writes DIR/eval.json")
-    _add(p, "eval", "run", "eval_seeds", "num_envs", "max_steps", "out", required=("run",))
-    p.add_argument(
-        "--backend",
-        help="adapter name (see `list`): evaluate on this backend instead of the one the run "
-        "trained on (sim-to-sim; default file DIR/eval_on_BACKEND.json)",
-    )
-
-    p = sub.add_parser("report", help="tables (md, csv: per run and mean over seeds) and curves (png)")
-    _add(p, "report", "runs", "out", required=("runs", "out"))
-    p.add_argument("--no-plot", action="store_true")
-
-    p = sub.add_parser("sweep", help="algorithms x seeds of one task and backend: a suite made in memory")
-    names = ("backend", "task", "algos", "seeds", "epochs", "num_envs", "horizon", "device", "eval_seeds", "max_steps")
-    _add(
-        p,
-        "sweep",
-        *names,
-        "out",
-        "jobs",
-        "launcher",
-        "address",
-        "gpus_per_run",
-        required=("backend", "task", "algos", "epochs", "out"),
-    )
-
     p = sub.add_parser("grad-growth", help="open-loop action-gradient norms along a run's policy trajectories")
     _add(p, "grad-growth", "run", required=("run",))
     p.add_argument("--variant", action="append", default=None, help="physics changes, e.g. contact_kf=300")
@@ -424,26 +466,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     _add(p, "crosscheck", "task", "backends", "num_envs", "steps", "seed", "out", required=("task", "backends"))
 
-    p = sub.add_parser(
-        "parity",
-        help="do two engines simulate the same task: settle, contact and limit probes, open-loop divergence, "
-        "random-policy episode lengths (table, plot, JSON)",
-    )
-    _add(
-        p,
-        "parity",
-        "task",
-        "backends",
-        "preset",
-        "num_envs",
-        "episode_seeds",
-        "steps",
-        "max_steps",
-        "seed",
-        "out",
-        required=("task",),
-    )
 
+def _contact_verbs(sub) -> None:
+    """Gradients in contact: per-step Jacobians against a reference, MuJoCo-Warp's schemes."""
     p = sub.add_parser(
         "contact-jacobians",
         help="per-step Jacobians at states in contact against a reference (MuJoCo C float64, or Newton's own "
@@ -465,30 +490,6 @@ def build_parser() -> argparse.ArgumentParser:
         default=30,
         help="half the states come from a SHAC policy trained this many epochs on newton, half from random "
         "actions (0: all random; default %(default)s)",
-    )
-
-    p = sub.add_parser("throughput", help="env-steps/s forward-only and forward+backward, and the bare engine")
-    _add(
-        p,
-        "throughput",
-        "backend",
-        "task",
-        "num_envs",
-        "horizon",
-        "device",
-        "seed",
-        "windows",
-        "out",
-        "backend_option",
-        "preset",
-        required=("backend", "task"),
-    )
-    p.add_argument(
-        "--grad-cost-only",
-        type=_positive_int,
-        metavar="WORLDS",
-        help="finite-difference adapters whose timed windows are out of reach (MuJoCo-Warp soft bodies): time one "
-        "control step of WORLDS worlds and scale it to a step with gradients (forward-only windows still timed)",
     )
 
     p = sub.add_parser(
@@ -521,6 +522,53 @@ def build_parser() -> argparse.ArgumentParser:
         "the analytic gradients; the control-step rows come with the default scheme, one_sided) (default: every row)",
     )
 
+
+def _engine_verbs(sub) -> None:
+    """Engine measurements: parity of the physics, speed, solver settings, a peer simulator."""
+    p = sub.add_parser(
+        "parity",
+        help="do two engines simulate the same task: settle, contact and limit probes, open-loop divergence, "
+        "random-policy episode lengths (table, plot, JSON)",
+    )
+    _add(
+        p,
+        "parity",
+        "task",
+        "backends",
+        "preset",
+        "num_envs",
+        "episode_seeds",
+        "steps",
+        "max_steps",
+        "seed",
+        "out",
+        required=("task",),
+    )
+
+    p = sub.add_parser("throughput", help="env-steps/s forward-only and forward+backward, and the bare engine")
+    _add(
+        p,
+        "throughput",
+        "backend",
+        "task",
+        "num_envs",
+        "horizon",
+        "device",
+        "seed",
+        "windows",
+        "out",
+        "backend_option",
+        "preset",
+        required=("backend", "task"),
+    )
+    p.add_argument(
+        "--grad-cost-only",
+        type=_positive_int,
+        metavar="WORLDS",
+        help="finite-difference adapters whose timed windows are out of reach (MuJoCo-Warp soft bodies): time one "
+        "control step of WORLDS worlds and scale it to a step with gradients (forward-only windows still timed)",
+    )
+
     p = sub.add_parser("scaling", help="forward and forward+backward env-steps/s over num_envs: CSV and log-log plot")
     names = ("backend", "task", "horizon", "device", "seed", "windows", "out", "backend_option")
     _add(p, "scaling", *names, required=("backend", "task"))
@@ -547,28 +595,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--csv", nargs="+", required=True, help="CSV files written by `scaling`")
     _add(p, "scaling-plot", "out", required=("out",))
 
+    p = sub.add_parser("solver-probe", help="Newton solver/contact settings: forward stability and gradient size")
+    _add(p, "solver-probe", "backend", "task", "num_envs", "max_steps", "out")
+
     p = sub.add_parser(
-        "bench",
-        help="the benchmark suite: checks, training grid, sim-to-sim, loss landscapes, then tables and plots",
+        "peer", help="a peer simulator's env-steps/s (Rewarped, in its own environment), written with provenance"
     )
+    p.add_argument("--peer", default="rewarped", help="the peer simulator (default: %(default)s)")
+    _add(p, "peer", "task", "num_envs", "horizon", "windows", "out", required=("task", "num_envs", "horizon", "out"))
+    p.add_argument("--python", help="the peer environment's interpreter (default: $DIFFSIM_REWARPED_PYTHON)")
     p.add_argument(
-        "--profile",
-        help="smoke (tox -e bench), standard (results/), perf (speed), protocol (the paper's Ant protocol) "
-        "or paper (a cluster's worth)",
+        "--peer-arg",
+        action="append",
+        default=[],
+        metavar="WORD",
+        help="a further word for the peer's script, e.g. --peer-arg=--nograd-env (repeatable)",
     )
-    p.add_argument("--spec", help="a TOML spec of your own (format: docs/suite.md)")
-    p.add_argument(
-        "--store",
-        default="results/bench",
-        help="runs, checks, logs and tables go to STORE/NAME, NAME the spec's suite name (default: %(default)s)",
-    )
-    _add(p, "bench", "jobs", "launcher", "address", "gpus_per_run", "device")
-    p.add_argument("--dry-run", action="store_true", help="list the jobs, their state and estimated cost; run none")
-    p.add_argument("--report-only", action="store_true", help="write the tables and plots from what is finished")
 
-    p = sub.add_parser("bench-run", help="(used by bench) train or resume one planned run, then evaluate it")
-    p.add_argument("run_dir", help="a run directory planned by bench (holds job.json)")
 
+def _analysis_verbs(sub) -> None:
+    """Analyses of a run's final policy: the loss landscape, the step gain, a video."""
     p = sub.add_parser("landscape", help="h-step and TD-lambda actor losses over a plane of policy parameters")
     _add(p, "landscape", "run", "num_envs", "seed", required=("run",))
     p.add_argument("--grid", type=_int_in(2, MAX_GRID), default=40, help="points per axis (default: %(default)s)")
@@ -587,21 +633,3 @@ def build_parser() -> argparse.ArgumentParser:
     _add(p, "render", "run", "backend", "max_steps", required=("run",))
     p.add_argument("--compare", action="store_true", help="both engines side by side, the same policy and seed")
     p.add_argument("--frames", type=_positive_int, default=60, help="frames drawn, evenly spaced (default: 60)")
-
-    p = sub.add_parser("solver-probe", help="Newton solver/contact settings: forward stability and gradient size")
-    _add(p, "solver-probe", "backend", "task", "num_envs", "max_steps", "out")
-
-    p = sub.add_parser(
-        "peer", help="a peer simulator's env-steps/s (Rewarped, in its own environment), written with provenance"
-    )
-    p.add_argument("--peer", default="rewarped", help="the peer simulator (default: %(default)s)")
-    _add(p, "peer", "task", "num_envs", "horizon", "windows", "out", required=("task", "num_envs", "horizon", "out"))
-    p.add_argument("--python", help="the peer environment's interpreter (default: $DIFFSIM_REWARPED_PYTHON)")
-    p.add_argument(
-        "--peer-arg",
-        action="append",
-        default=[],
-        metavar="WORD",
-        help="a further word for the peer's script, e.g. --peer-arg=--nograd-env (repeatable)",
-    )
-    return parser

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 from harness.cli.inputs import (
     BadInput,
-    _check_device,
-    _check_memory,
-    _check_output_file,
-    _make_sim,
-    _validate_names,
+    check_device,
+    check_memory,
+    check_output,
+    make_verb_sim,
     out_stem,
+    preflight,
     sim_physics,
+    validate_names,
 )
 from harness.results import harness_command
 
@@ -19,12 +20,9 @@ def cmd_throughput(args) -> int:
     from harness.results import write_check
     from harness.throughput import measure
 
-    _validate_names(args.backend, args.task)
-    _check_device(args.device)
-    if args.out:
-        _check_output_file(args.out)
-    _check_memory(args.backend, args.task, args.num_envs, 0 if args.grad_cost_only else args.horizon, args.device)
-    sim = _make_sim(args, horizon=args.horizon)
+    memory = (args.num_envs, 0 if args.grad_cost_only else args.horizon)
+    preflight(backends=args.backend, task=args.task, device=args.device, out=args.out, memory=memory)
+    sim = make_verb_sim(args, horizon=args.horizon)
     print(
         f"throughput {args.backend}/{args.task} (preset {sim.task.preset_label}, {sim.integrator}): "
         f"{args.num_envs} envs, windows of {args.horizon} steps",
@@ -81,12 +79,9 @@ def _grad_cost_only(sim, args) -> int:
 def cmd_solver_probe(args) -> int:
     from harness.solver_probe import run_probe
 
-    _validate_names(args.backend, args.task)
+    preflight(backends=args.backend, task=args.task, out=args.out, memory=(args.num_envs, 0))
     if args.task not in ("ant", "go2", "soft_jumper"):
         raise BadInput(f"solver-probe has candidates for the tasks ant, go2 and soft_jumper, not {args.task!r}")
-    if args.out:
-        _check_output_file(args.out)
-    _check_memory(args.backend, args.task, args.num_envs)
     run_probe(
         num_envs=args.num_envs,
         out=args.out,
@@ -106,7 +101,7 @@ def cmd_peer(args) -> int:
         raise BadInput(f"unknown peer {args.peer!r}; choose from: {', '.join(PEERS)}")
     if args.task not in PEER_TASKS[args.peer]:
         raise BadInput(f"{args.peer} has the tasks {', '.join(PEER_TASKS[args.peer])}, not {args.task!r}")
-    _check_output_file(args.out)
+    check_output(args.out)
     words = ["--num-envs", str(args.num_envs), "--horizon", str(args.horizon), "--windows", str(args.windows)]
     try:
         result = run_peer(args.peer, args.task, words + list(args.peer_arg), python=args.python)
@@ -119,7 +114,7 @@ def cmd_peer(args) -> int:
 def cmd_fd_schemes(args) -> int:
     from harness.results import atomic_write_text, write_check
 
-    _validate_names("mujoco_warp", args.task)
+    validate_names("mujoco_warp", args.task)
     from tasks import task_class
 
     if task_class(args.task).layout.num_particles:
@@ -136,9 +131,8 @@ def cmd_fd_schemes(args) -> int:
     if unknown:
         raise BadInput(f"--schemes: unknown scheme {unknown[0]!r}; choose from {', '.join(choices)}")
     prefix = out_stem(args.out) if args.out else None  # PREFIX or PREFIX.json: both files
-    if prefix:
-        _check_output_file(prefix + ".json")
-    _check_memory("mujoco_warp", args.task, max(args.num_envs, args.timing_envs), 1)
+    memory = (max(args.num_envs, args.timing_envs), 1)
+    preflight(backends="mujoco_warp", task=args.task, out=prefix and prefix + ".json", memory=memory)
     from harness.fd_schemes import fd_schemes, markdown
 
     print(f"fd-schemes mujoco_warp/{args.task}: accuracy on {args.num_envs} envs, cost at {args.timing_envs} envs")
@@ -162,14 +156,14 @@ def cmd_scaling(args) -> int:
     from harness.results import provenance, write_check
     from harness.scaling import scaling, to_csv, write
 
-    _validate_names(args.backend, args.task)
-    _check_device(args.device)
+    validate_names(args.backend, args.task)
+    check_device(args.device)
     if sorted(args.envs) != list(args.envs) or len(set(args.envs)) != len(args.envs):
         raise BadInput(f"--envs must be distinct and increasing, got {args.envs}")
     out = out_stem(args.out) if args.out else None  # without --out, as every measuring verb: print, write nothing
     if out:
-        _check_output_file(out + ".csv")
-    _check_memory(
+        check_output(out + ".csv")
+    check_memory(
         args.backend, args.task, args.envs[-1], 0 if args.forward_only else args.horizon, args.device, "--envs"
     )
     print(f"scaling {args.backend}/{args.task}: envs {args.envs}, {args.horizon}-step windows, best of {args.windows}")
@@ -206,7 +200,7 @@ def cmd_scaling_plot(args) -> int:
         raise BadInput(f"no such scaling CSV: {missing[0]}")
     if not args.out.endswith(".png"):
         raise BadInput(f"--out must name a .png file, got {args.out!r}")
-    _check_output_file(args.out)
+    check_output(args.out)
     try:
         print(f"wrote {plot(args.csv, args.out)}")
     except (KeyError, ValueError) as exc:

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 from harness.cli.inputs import (
     BadInput,
-    _algo_config,
-    _check_device,
-    _check_memory,
-    _check_output_file,
-    _check_preset,
-    _validate_names,
+    algo_config,
+    check_device,
+    check_memory,
+    check_output,
+    preflight,
+    validate_names,
 )
 from harness.cli.parser import FLAGS
 from harness.results import harness_command
@@ -47,11 +47,9 @@ def cmd_train(args) -> int:
     missing = [name for name in ("backend", "task", "algo", "epochs", "out") if getattr(args, name) is None]
     if missing:
         raise BadInput("train needs " + ", ".join("--" + m.replace("_", "-") for m in missing) + " (or --resume DIR)")
-    _validate_names(args.backend, args.task)
-    _check_device(args.device)
-    _check_preset(args.task, args.preset)
-    cfg = _algo_config(args, args.algo)
-    _check_memory(args.backend, args.task, cfg.num_envs, cfg.horizon, args.device)
+    preflight(backends=args.backend, task=args.task, device=args.device, preset=args.preset)
+    cfg = algo_config(args, args.algo)
+    check_memory(args.backend, args.task, cfg.num_envs, cfg.horizon, args.device)
     train(
         args.out,
         args.task,
@@ -76,11 +74,11 @@ def cmd_eval(args) -> int:
 
     config = read_config(Path(args.run))
     if args.backend:
-        _validate_names(args.backend, config["task"])
+        validate_names(args.backend, config["task"])
     if args.out:
-        _check_output_file(args.out)
+        check_output(args.out)
     if args.num_envs:
-        _check_memory(args.backend or config["backend"], config["task"], args.num_envs, 0, config["device"])
+        check_memory(args.backend or config["backend"], config["task"], args.num_envs, 0, config["device"])
     result = evaluate(
         args.run,
         seeds=args.eval_seeds,
@@ -106,7 +104,7 @@ def cmd_report(args) -> int:
     runs = [Path(r) for r in args.runs]
     for run in runs:
         read_config(run)
-    _check_output_file(args.out)
+    check_output(args.out)
     for path in write_report(runs, args.out, harness_command(), plot=not args.no_plot):
         print(f"wrote {path}")
     return 0
@@ -117,21 +115,13 @@ def cmd_sweep(args) -> int:
     (runs addressed and reused as the bench's, tables and plots beside them in OUT)."""
     from pathlib import Path
 
-    from harness.results import path_problem
     from harness.runner import run_suite
 
-    _validate_names(args.backend, args.task)
-    _check_device(args.device)
+    preflight(backends=args.backend, task=args.task, device=args.device)
     for name in args.algos:
-        _algo_config(args, name)  # refuse bad input before any training
-    if not args.out.strip():
-        raise BadInput("--out is empty: name a directory for the sweep")
-    problem = path_problem(Path(args.out) / "runs" / "config.json")
-    if problem:
-        raise BadInput(f"--out {args.out}: {problem}")
+        algo_config(args, name)  # refuse bad input before any training
+    check_output(args.out, "folder")
     out = Path(args.out).resolve()
-    if out.exists() and not out.is_dir():
-        raise BadInput(f"--out {args.out} is an existing file, not a directory")
     evaluation = {"seeds": args.eval_seeds, **({"max_steps": args.max_steps} if args.max_steps else {})}
     spec = {
         "suite": {"name": out.name, "jobs": args.jobs or 1, "device": args.device},
@@ -163,7 +153,7 @@ def cmd_bench(args) -> int:
     from harness.runner import run_suite
 
     if args.device:
-        _check_device(args.device)
+        check_device(args.device)
     return run_suite(
         profile=args.profile,
         spec_file=args.spec,
@@ -198,7 +188,7 @@ def cmd_render(args) -> int:
     if args.compare and args.backend:
         raise BadInput("--compare shows both engines; drop --backend")
     if args.backend:
-        _validate_names(args.backend, None)
+        validate_names(args.backend, None)
     shown = compared_backends(trained_on) if args.compare else [args.backend or trained_on]
     render(args.run, shown, args.max_steps or 300, args.frames)
     return 0
@@ -207,12 +197,13 @@ def cmd_render(args) -> int:
 def cmd_landscape(args) -> int:
     from pathlib import Path
 
-    from harness.landscape import compute_landscape, plot_landscape, write_landscape
+    from harness.landscape import compute_landscape, write_landscape
+    from harness.report.plots import plot_landscape
     from harness.run_folder import read_config
 
     config = read_config(Path(args.run))
     if args.num_envs:  # one window of the run's h steps per point, no backward pass
-        _check_memory(config["backend"], config["task"], args.num_envs, 0, config["device"])
+        check_memory(config["backend"], config["task"], args.num_envs, 0, config["device"])
     result = compute_landscape(
         args.run, grid=args.grid, span=args.span, num_envs=args.num_envs, seed=args.seed, warmup_steps=args.warmup_steps
     )
@@ -232,7 +223,7 @@ def cmd_step_gain(args) -> int:
 
     config = read_config(Path(args.run))
     # one window of the run's h steps with its graph kept, every env
-    _check_memory(config["backend"], config["task"], args.num_envs, config["algo_config"].horizon, config["device"])
+    check_memory(config["backend"], config["task"], args.num_envs, config["algo_config"].horizon, config["device"])
     result = compute_step_gain(args.run, states=args.states, num_envs=args.num_envs, stride=args.stride, seed=args.seed)
     print(f"wrote {write_step_gain(args.run, result)}")
     gain, growth = result["summary"]["state_gain"], result["window"]["per_step_growth"]

@@ -24,7 +24,7 @@ part writes it as ``NAME_PART.csv`` (with its own ``.provenance.json``) and as a
 Plots (PNG, matplotlib's Agg backend, one figure per file): ``learning_curves_steps``,
 ``learning_curves_wall``, ``grad_variance_vs_h``, ``returns_vs_h``, ``lambda_alpha``, ``wall_time``,
 ``throughput``, ``scaling`` (every scaling check's curves, log-log), ``performance_profile`` and one
-``landscape_*.png`` per landscape (``harness.landscape.plot_landscape``, when that
+``landscape_*.png`` per landscape (``harness.report.plots.plot_landscape``, when that
 module imports).
 A plot without data is skipped (and a stale file of that name removed); ``index.md`` lists what was
 written and what was skipped, and why.

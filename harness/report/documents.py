@@ -239,217 +239,254 @@ def returns_document(runs: list[RunRecord]) -> Table:
         "Final evaluation return per algorithm",
         rests_on_runs(evaluated, "evaluated training runs") + eval_protocol,
         [
-            Section(
-                returns,
-                _key_columns("task", "backend", "algo", "horizon", "num_envs", "seeds", "epochs", "env_steps")
-                + [
-                    ("IQM final", "iqm_final"),
-                    ("95% CI", lambda r: fmt_ci(r["iqm_ci_low"], r["iqm_ci_high"])),
-                    ("mean ± std", lambda r: f"{fmt(r['mean_final'])} ± {fmt(r['std_final'])}"),
-                    ("initial (mean)", "mean_initial"),
-                    ("vs base", _base_cell),
-                    ("IQM improvement (descriptive)", "improvement_iqm"),
-                    ("P(algo > base) (descriptive)", "p_improvement"),
-                    ("detectable at 80% power (paired)", "mde_80"),
-                    ("forward velocity m/s (IQM)", _velocity_cell),
-                    ("velocity 95% CI", lambda r: fmt_ci(r["forward_velocity_ci_low"], r["forward_velocity_ci_high"])),
-                ],
-                empty="no run has an eval.json",
-            ),
-            Section(
-                power_table(runs),
-                _key_columns("task", "backend", "num_envs", "epochs", "horizon", "family", "algos", "seeds")
-                + [
-                    ("between-seed std (pooled)", "pooled_std"),
-                    ("base's mean", "base_mean"),
-                    ("std / base mean", "cv"),
-                ]
-                + [(f"seeds for +{round(e * 100)}%", _whole(f"seeds_for_{round(e * 100)}pct")) for e in EFFECTS],
-                heading="Statistical power: seeds per algorithm needed to detect an improvement",
-                csv_suffix="_power",
-                empty="no run has an eval.json",
-            ),
-            Section(
-                claims_table(runs),
-                _key_columns("task", "backend", "num_envs", "epochs", "horizon", "env_steps", "metric", "algo", "base")
-                + [
-                    ("seed pairs", "pairs"),
-                    ("look", lambda r: r["look"] if isinstance(r["look"], str) and r["look"] else "none yet"),
-                    ("claimed", lambda r: _signed_pct(r["claimed_change"])),
-                    ("mean ratio - 1 (verdict's estimand)", lambda r: _signed_pct(r["measured_change"])),
-                    ("interval", _change_ci),
-                    ("verdict", "verdict"),
-                    ("design", _design_cell),
-                    ("IQM algo / base (descriptive)", lambda r: f"{fmt(r['iqm_algo'])} / {fmt(r['iqm_base'])}"),
-                    ("P(algo > base) (descriptive)", "p_improvement"),
-                    ("sign-flip p", "sign_flip_p"),
-                    ("spent", _spent_cell),
-                    ("paper", "source"),
-                ],
-                heading="The paper's claims: each TD-lambda variant against its base",
-                csv_suffix="_claims",
-                empty="no setting has evaluated runs of a claim's two algorithms",
-            ),
-            Section(
-                lambda_course_table(runs),
-                _key_columns("task", "backend", "num_envs", "epochs", "horizon", "env_steps", "algo", "seeds")
-                + [
-                    ("lambda after epoch 1 (mean)", "lambda_first"),
-                    (
-                        "final lambda (mean ± std)",
-                        lambda r: f"{fmt(r['lambda_final_mean'])} ± {fmt(r['lambda_final_std'])}",
-                    ),
-                    ("change (mean)", "change"),
-                    ("95% CI", lambda r: fmt_ci(r["change_ci_low"], r["change_ci_high"])),
-                    ("epochs lambda fell", lambda r: fmt_pct(r["falling_share"])),
-                    ("verdict: lambda falls", "verdict"),
-                    ("paper", "source"),
-                ],
-                heading="The paper's claim that the learned lambda falls over training",
-                csv_suffix="_lambda",
-                empty="no adaptive-lambda algorithm has evaluated runs",
-            ),
-            Section(
-                lambda_rate_table(runs),
-                _key_columns("task", "backend", "num_envs", "epochs", "horizon", "env_steps", "algo", "seeds")
-                + [
-                    ("phi updates x lr (limit)", "limit"),
-                    ("change of phi (mean)", "delta_phi"),
-                    ("95% CI", lambda r: fmt_ci(r["delta_phi_ci_low"], r["delta_phi_ci_high"])),
-                    (
-                        "share of the limit used (mean, range)",
-                        lambda r: (
-                            f"{fmt_pct(r['used_share'])} ({fmt_pct(r['used_share_min'])}-"
-                            f"{fmt_pct(r['used_share_max'])})"
-                        ),
-                    ),
-                    ("epochs lambda fell", lambda r: fmt_pct(r["falling_share"])),
-                    ("verdict", "verdict"),
-                    ("paper", "source"),
-                ],
-                heading="The learned lambda's fall against what its optimiser allows",
-                csv_suffix="_lambda_rate",
-                empty="no adaptive-lambda algorithm has evaluated runs",
-            ),
-            Section(
-                gradient_variance_claim_table(runs),
-                _key_columns("task", "backend", "num_envs", "epochs", "horizon", "env_steps", "statistic", "algo")
-                + [
-                    ("base", "base"),
-                    ("seed pairs", "pairs"),
-                    (
-                        "level algo / base (geometric mean)",
-                        lambda r: f"{fmt(r['level_algo'])} / {fmt(r['level_base'])}",
-                    ),
-                    ("ratio", "ratio"),
-                    ("95% CI", lambda r: fmt_ci(r["ratio_ci_low"], r["ratio_ci_high"])),
-                    ("verdict: TD-lambda lowers it", "verdict"),
-                    ("paper's levels", "paper_levels"),
-                    ("paper", "source"),
-                ],
-                heading="The paper's claim that TD-lambda lowers the actor gradient's variance over training",
-                csv_suffix="_grad_variance",
-                empty="no finished variant and base logged the actor-gradient statistics",
-            ),
-            Section(
-                locomotion_table(runs),
-                _key_columns("task", "backend", "num_envs", "epochs", "horizon", "env_steps", "algo", "seeds")
-                + [
-                    ("untrained velocity m/s (mean)", "untrained_velocity"),
-                    ("final velocity m/s (mean)", "final_velocity"),
-                    ("95% CI", lambda r: fmt_ci(r["final_velocity_ci_low"], r["final_velocity_ci_high"])),
-                    (f"seeds at >= {LOCOMOTION_SPEED} m/s", lambda r: f"{r['seeds_moving']} of {r['seeds']}"),
-                    ("verdict", "verdict"),
-                    ("paper says", "paper_says"),
-                    ("paper's claim", "paper_verdict"),
-                    ("paper", "source"),
-                ],
-                heading="Forward locomotion: do the final policies move forward?",
-                csv_suffix="_locomotion",
-                empty="no evaluation recorded a forward velocity",
-            ),
+            _returns_section(returns),
+            _power_section(runs),
+            _claims_section(runs),
+            _lambda_course_section(runs),
+            _lambda_rate_section(runs),
+            _grad_variance_section(runs),
+            _locomotion_section(runs),
         ],
-        [
-            "IQM: interquartile mean over training seeds (`scipy.stats.trim_mean(x, 0.25)`, rliable's "
-            "definition), each seed contributing its eval.json final mean return; under 4 seeds it trims "
-            "nothing and is the mean. 95% CI: percentile bootstrap over seeds, "
-            f"{BOOTSTRAP_RESAMPLES} resamples, `np.random.default_rng({BOOTSTRAP_SEED})` "
-            "(`scipy.stats.bootstrap`; one task and backend per row is one stratum, so rliable's stratified "
-            "bootstrap is this plain one), descriptive: at 5 seeds it covers less than 95% "
-            "(results/statistics/coverage.md). n/a under 2 seeds. mean ± std: sample std (n - 1).",
-            "IQM improvement: IQM(algo) - IQM(base) at the same task, backend, h, N and epochs (base of "
-            "shac-tdfixed and shac-tdadpt is shac, of sapo-tdfixed and sapo-tdadpt sapo); P(algo > base): "
-            "rliable's probability of improvement (`rliable.metrics.probability_of_improvement`: the chance "
-            "that a random seed of the algorithm scores above a random seed of its base, ties counting half; "
-            "0.5 is no difference). Both descriptive, without an interval: the verdicts are the claims "
-            "table's, and a percentile bootstrap of P at 5 seeds covers far less than 95% "
-            "(results/statistics/coverage.md).",
-            "Detectable at 80% power (paired): the smallest true difference of mean final returns between the "
-            "algorithm and its base that a two-sided paired t-test at level 0.05 detects with probability 0.8 "
-            "over the seeds both have, (t_0.975 + t_0.8) s_d / sqrt(n) at n - 1 degrees of freedom, s_d the std "
-            "of the seed-paired differences; an improvement below it is not evidence either way. Power table: "
-            "per algorithm family (a base and its TD-lambda variants), the between-seed std pooled over the "
-            "family's algorithms, and the seeds per algorithm at which a two-sample t-test detects +25%, +50% "
-            "and +100% of the base's mean return (blank: over 10,000), a planning figure.",
-            "Forward velocity: the final policy's velocity along +x (the root's; the SoftJumper's centre of "
-            "mass), each env's mean over its first episode, averaged over envs and eval seeds; IQM and CI over "
-            "training seeds as for the return. It says whether a policy moves forward at all, whatever the "
-            "reward's other terms pay; over the training seeds whose evaluation recorded it (the cell says how "
-            "many when not all did), n/a when none did.",
-            "The paper's claims, by the analysis plan fixed in docs/statistics.md before the runs it decides: "
-            "each claimed improvement of a TD-lambda variant over its base (ARE: Fig. 5 for the Ant, Fig. 9 and "
-            "the abstract for the Go2) as the relative change of the mean final return, mean(algo) / mean(base) -"
-            " 1 (the paper normalises by the base's mean), over the seeds both algorithms have evaluated (seed s "
-            "gives both the same initial policy and environments: a paired design); for the Go2's SHAC-TDAdpt "
-            "also of the mean forward velocity. Interval: the paired Fieller interval (the ratios r whose paired "
-            "t-test of algo - r base does not reject), unbounded where the base's mean is not told from 0. Seeds "
-            "arrive in a group-sequential design: looks at 5 and 10 seed pairs, 0.025 of the error spent at each "
-            "(97.5% intervals, Bonferroni), a look reads its own first pairs only, a claim decided at a look "
-            "keeps that look's verdict, and one undecided at the first look stops there when futile (conditional "
-            "power under 0.10: were the next pairs to come from what the first five show, under 10% of 2,000 "
-            "simulated completions would decide). Verdict: confirmed when the interval lies above 0 and does not "
-            "lie below the claimed size; contradicted when it lies below the claimed size at the paper's protocol"
-            " (N 64, h 32, 2000 epochs), not confirmed at this budget when it does so at another setting; "
-            "undecided when it holds both 0 and the claimed size. Design: what the design does next (continue, "
-            "decided, futile, last look) and the seeds per algorithm it asks for, which `bench --profile "
-            "protocol` plans. Descriptive only, never a verdict: each side's IQM, rliable's probability of "
-            "improvement over the pairs' seeds (its bootstrap interval under-covers at these seeds, so none is "
-            "shown) and the exact sign-flip p-value of the paired differences (its smallest value at 5 pairs is "
-            "0.0625). Spent: env steps and training wall time (core-hours) of both algorithms' runs the look "
-            "read; a base's runs count for each claim that reads them.",
-            'The learned lambda (Fig. 4b: it "gradually decreases over time"): per finished run of an '
-            "adaptive-lambda algorithm, lambda after its first and its last epoch; change: last - first, mean "
-            "over seeds with the 95% CI of a one-sample t-test; epochs lambda fell: the share of epochs whose "
-            "update lowered it, averaged over seeds. Verdict: confirmed when the CI lies below 0, contradicted "
-            "when above, undecided otherwise. Its course per epoch: lambda_alpha.png.",
-            "The learned lambda's pace (Fig. 4b judged on what the optimiser allows): lambda = sigmoid(phi) and "
-            "phi takes one AdamW step per lambda update, about the learning rate in size whenever the gradient "
-            "keeps its sign, so a fall in every epoch says only that the sign never turned. Per finished run, "
-            "the change of phi from logit(0.95) to its final value against the limit updates x learning rate; "
-            "verdict: at the optimiser's rate limit when every seed used 90% of it or more (the data set only "
-            "the sign), slower than the optimiser allows when phi fell (95% t CI over seeds below 0) using "
-            "less (the data, or the gradient's varying size, set the pace), undecided otherwise.",
-            "Actor-gradient variance over training (Fig. 2): per run the median over epochs of the logged "
-            "variance (raw, and the scale-free noise-to-signal ratio), per seed pair variant / base; the ratio "
-            "is the geometric mean over pairs with the 95% t interval of the paired log-ratios. Verdict: "
-            "confirmed when the interval lies below 1, contradicted above 1 at the paper's protocol (not "
-            "confirmed at this budget elsewhere), undecided otherwise. The levels are shown beside the paper's "
-            "descriptively: the variance scales with the loss, whose normalisation differs between "
-            "implementations. The curves: grad_variance_training.png.",
-            f"Forward locomotion: a policy moves forward when its forward velocity (as above) reaches "
-            f"{LOCOMOTION_SPEED} m/s, a slow walk for a legged robot of the Go2's or the Ant's size and above the "
-            "drift of a policy that stands still or falls over (the untrained policies' column shows that "
-            "drift). Per setting and algorithm, over the training seeds whose evaluation recorded a velocity: "
-            "the untrained and the final policies' velocity (mean over seeds), the final one's 95% CI of a "
-            "one-sample t-test, and the seeds that reach the speed. Verdict: moves forward when the CI lies "
-            "above the speed, does not when below, undecided otherwise. Where the paper says whether an "
-            "algorithm acquires forward locomotion on a task (Sec. V-E: the Go2's SHAC does not, at the "
-            "paper's budget; its SHAC-TDAdpt improves on that markedly), the claim is confirmed when the "
-            "verdict agrees, contradicted when it disagrees.",
-            "Runs without eval.json (unfinished) are left out of these tables.",
-        ],
+        _returns_notes(),
         _run_commits(evaluated),
     )
+
+
+def _returns_section(returns) -> Section:
+    """The returns table proper: one row per (task, backend, algorithm, horizon, N, epochs)."""
+    return Section(
+        returns,
+        _key_columns("task", "backend", "algo", "horizon", "num_envs", "seeds", "epochs", "env_steps")
+        + [
+            ("IQM final", "iqm_final"),
+            ("95% CI", lambda r: fmt_ci(r["iqm_ci_low"], r["iqm_ci_high"])),
+            ("mean ± std", lambda r: f"{fmt(r['mean_final'])} ± {fmt(r['std_final'])}"),
+            ("initial (mean)", "mean_initial"),
+            ("vs base", _base_cell),
+            ("IQM improvement (descriptive)", "improvement_iqm"),
+            ("P(algo > base) (descriptive)", "p_improvement"),
+            ("detectable at 80% power (paired)", "mde_80"),
+            ("forward velocity m/s (IQM)", _velocity_cell),
+            ("velocity 95% CI", lambda r: fmt_ci(r["forward_velocity_ci_low"], r["forward_velocity_ci_high"])),
+        ],
+        empty="no run has an eval.json",
+    )
+
+
+def _power_section(runs: list[RunRecord]) -> Section:
+    """Seeds per algorithm a two-sample t-test needs to detect an improvement (a planning figure)."""
+    return Section(
+        power_table(runs),
+        _key_columns("task", "backend", "num_envs", "epochs", "horizon", "family", "algos", "seeds")
+        + [
+            ("between-seed std (pooled)", "pooled_std"),
+            ("base's mean", "base_mean"),
+            ("std / base mean", "cv"),
+        ]
+        + [(f"seeds for +{round(e * 100)}%", _whole(f"seeds_for_{round(e * 100)}pct")) for e in EFFECTS],
+        heading="Statistical power: seeds per algorithm needed to detect an improvement",
+        csv_suffix="_power",
+        empty="no run has an eval.json",
+    )
+
+
+def _claims_section(runs: list[RunRecord]) -> Section:
+    """The paper's claims, each TD-lambda variant against its base, by the pre-registered analysis."""
+    return Section(
+        claims_table(runs),
+        _key_columns("task", "backend", "num_envs", "epochs", "horizon", "env_steps", "metric", "algo", "base")
+        + [
+            ("seed pairs", "pairs"),
+            ("look", lambda r: r["look"] if isinstance(r["look"], str) and r["look"] else "none yet"),
+            ("claimed", lambda r: _signed_pct(r["claimed_change"])),
+            ("mean ratio - 1 (verdict's estimand)", lambda r: _signed_pct(r["measured_change"])),
+            ("interval", _change_ci),
+            ("verdict", "verdict"),
+            ("design", _design_cell),
+            ("IQM algo / base (descriptive)", lambda r: f"{fmt(r['iqm_algo'])} / {fmt(r['iqm_base'])}"),
+            ("P(algo > base) (descriptive)", "p_improvement"),
+            ("sign-flip p", "sign_flip_p"),
+            ("spent", _spent_cell),
+            ("paper", "source"),
+        ],
+        heading="The paper's claims: each TD-lambda variant against its base",
+        csv_suffix="_claims",
+        empty="no setting has evaluated runs of a claim's two algorithms",
+    )
+
+
+def _lambda_course_section(runs: list[RunRecord]) -> Section:
+    """Fig. 4b: does the learned lambda fall over training?"""
+    return Section(
+        lambda_course_table(runs),
+        _key_columns("task", "backend", "num_envs", "epochs", "horizon", "env_steps", "algo", "seeds")
+        + [
+            ("lambda after epoch 1 (mean)", "lambda_first"),
+            (
+                "final lambda (mean ± std)",
+                lambda r: f"{fmt(r['lambda_final_mean'])} ± {fmt(r['lambda_final_std'])}",
+            ),
+            ("change (mean)", "change"),
+            ("95% CI", lambda r: fmt_ci(r["change_ci_low"], r["change_ci_high"])),
+            ("epochs lambda fell", lambda r: fmt_pct(r["falling_share"])),
+            ("verdict: lambda falls", "verdict"),
+            ("paper", "source"),
+        ],
+        heading="The paper's claim that the learned lambda falls over training",
+        csv_suffix="_lambda",
+        empty="no adaptive-lambda algorithm has evaluated runs",
+    )
+
+
+def _lambda_rate_section(runs: list[RunRecord]) -> Section:
+    """Fig. 4b judged on what lambda's optimiser allows."""
+    return Section(
+        lambda_rate_table(runs),
+        _key_columns("task", "backend", "num_envs", "epochs", "horizon", "env_steps", "algo", "seeds")
+        + [
+            ("phi updates x lr (limit)", "limit"),
+            ("change of phi (mean)", "delta_phi"),
+            ("95% CI", lambda r: fmt_ci(r["delta_phi_ci_low"], r["delta_phi_ci_high"])),
+            (
+                "share of the limit used (mean, range)",
+                lambda r: f"{fmt_pct(r['used_share'])} ({fmt_pct(r['used_share_min'])}-{fmt_pct(r['used_share_max'])})",
+            ),
+            ("epochs lambda fell", lambda r: fmt_pct(r["falling_share"])),
+            ("verdict", "verdict"),
+            ("paper", "source"),
+        ],
+        heading="The learned lambda's fall against what its optimiser allows",
+        csv_suffix="_lambda_rate",
+        empty="no adaptive-lambda algorithm has evaluated runs",
+    )
+
+
+def _grad_variance_section(runs: list[RunRecord]) -> Section:
+    """Fig. 2: does TD-lambda lower the actor gradient's variance over training?"""
+    return Section(
+        gradient_variance_claim_table(runs),
+        _key_columns("task", "backend", "num_envs", "epochs", "horizon", "env_steps", "statistic", "algo")
+        + [
+            ("base", "base"),
+            ("seed pairs", "pairs"),
+            (
+                "level algo / base (geometric mean)",
+                lambda r: f"{fmt(r['level_algo'])} / {fmt(r['level_base'])}",
+            ),
+            ("ratio", "ratio"),
+            ("95% CI", lambda r: fmt_ci(r["ratio_ci_low"], r["ratio_ci_high"])),
+            ("verdict: TD-lambda lowers it", "verdict"),
+            ("paper's levels", "paper_levels"),
+            ("paper", "source"),
+        ],
+        heading="The paper's claim that TD-lambda lowers the actor gradient's variance over training",
+        csv_suffix="_grad_variance",
+        empty="no finished variant and base logged the actor-gradient statistics",
+    )
+
+
+def _locomotion_section(runs: list[RunRecord]) -> Section:
+    """Do the final policies move forward?"""
+    return Section(
+        locomotion_table(runs),
+        _key_columns("task", "backend", "num_envs", "epochs", "horizon", "env_steps", "algo", "seeds")
+        + [
+            ("untrained velocity m/s (mean)", "untrained_velocity"),
+            ("final velocity m/s (mean)", "final_velocity"),
+            ("95% CI", lambda r: fmt_ci(r["final_velocity_ci_low"], r["final_velocity_ci_high"])),
+            (f"seeds at >= {LOCOMOTION_SPEED} m/s", lambda r: f"{r['seeds_moving']} of {r['seeds']}"),
+            ("verdict", "verdict"),
+            ("paper says", "paper_says"),
+            ("paper's claim", "paper_verdict"),
+            ("paper", "source"),
+        ],
+        heading="Forward locomotion: do the final policies move forward?",
+        csv_suffix="_locomotion",
+        empty="no evaluation recorded a forward velocity",
+    )
+
+
+def _returns_notes() -> list[str]:
+    """How each section of the returns table is computed (the table's notes)."""
+    return [
+        "IQM: interquartile mean over training seeds (`scipy.stats.trim_mean(x, 0.25)`, rliable's "
+        "definition), each seed contributing its eval.json final mean return; under 4 seeds it trims "
+        "nothing and is the mean. 95% CI: percentile bootstrap over seeds, "
+        f"{BOOTSTRAP_RESAMPLES} resamples, `np.random.default_rng({BOOTSTRAP_SEED})` "
+        "(`scipy.stats.bootstrap`; one task and backend per row is one stratum, so rliable's stratified "
+        "bootstrap is this plain one), descriptive: at 5 seeds it covers less than 95% "
+        "(results/statistics/coverage.md). n/a under 2 seeds. mean ± std: sample std (n - 1).",
+        "IQM improvement: IQM(algo) - IQM(base) at the same task, backend, h, N and epochs (base of "
+        "shac-tdfixed and shac-tdadpt is shac, of sapo-tdfixed and sapo-tdadpt sapo); P(algo > base): "
+        "rliable's probability of improvement (`rliable.metrics.probability_of_improvement`: the chance "
+        "that a random seed of the algorithm scores above a random seed of its base, ties counting half; "
+        "0.5 is no difference). Both descriptive, without an interval: the verdicts are the claims "
+        "table's, and a percentile bootstrap of P at 5 seeds covers far less than 95% "
+        "(results/statistics/coverage.md).",
+        "Detectable at 80% power (paired): the smallest true difference of mean final returns between the "
+        "algorithm and its base that a two-sided paired t-test at level 0.05 detects with probability 0.8 "
+        "over the seeds both have, (t_0.975 + t_0.8) s_d / sqrt(n) at n - 1 degrees of freedom, s_d the std "
+        "of the seed-paired differences; an improvement below it is not evidence either way. Power table: "
+        "per algorithm family (a base and its TD-lambda variants), the between-seed std pooled over the "
+        "family's algorithms, and the seeds per algorithm at which a two-sample t-test detects +25%, +50% "
+        "and +100% of the base's mean return (blank: over 10,000), a planning figure.",
+        "Forward velocity: the final policy's velocity along +x (the root's; the SoftJumper's centre of "
+        "mass), each env's mean over its first episode, averaged over envs and eval seeds; IQM and CI over "
+        "training seeds as for the return. It says whether a policy moves forward at all, whatever the "
+        "reward's other terms pay; over the training seeds whose evaluation recorded it (the cell says how "
+        "many when not all did), n/a when none did.",
+        "The paper's claims, by the analysis plan fixed in docs/statistics.md before the runs it decides: "
+        "each claimed improvement of a TD-lambda variant over its base (ARE: Fig. 5 for the Ant, Fig. 9 and "
+        "the abstract for the Go2) as the relative change of the mean final return, mean(algo) / mean(base) -"
+        " 1 (the paper normalises by the base's mean), over the seeds both algorithms have evaluated (seed s "
+        "gives both the same initial policy and environments: a paired design); for the Go2's SHAC-TDAdpt "
+        "also of the mean forward velocity. Interval: the paired Fieller interval (the ratios r whose paired "
+        "t-test of algo - r base does not reject), unbounded where the base's mean is not told from 0. Seeds "
+        "arrive in a group-sequential design: looks at 5 and 10 seed pairs, 0.025 of the error spent at each "
+        "(97.5% intervals, Bonferroni), a look reads its own first pairs only, a claim decided at a look "
+        "keeps that look's verdict, and one undecided at the first look stops there when futile (conditional "
+        "power under 0.10: were the next pairs to come from what the first five show, under 10% of 2,000 "
+        "simulated completions would decide). Verdict: confirmed when the interval lies above 0 and does not "
+        "lie below the claimed size; contradicted when it lies below the claimed size at the paper's protocol"
+        " (N 64, h 32, 2000 epochs), not confirmed at this budget when it does so at another setting; "
+        "undecided when it holds both 0 and the claimed size. Design: what the design does next (continue, "
+        "decided, futile, last look) and the seeds per algorithm it asks for, which `bench --profile "
+        "protocol` plans. Descriptive only, never a verdict: each side's IQM, rliable's probability of "
+        "improvement over the pairs' seeds (its bootstrap interval under-covers at these seeds, so none is "
+        "shown) and the exact sign-flip p-value of the paired differences (its smallest value at 5 pairs is "
+        "0.0625). Spent: env steps and training wall time (core-hours) of both algorithms' runs the look "
+        "read; a base's runs count for each claim that reads them.",
+        'The learned lambda (Fig. 4b: it "gradually decreases over time"): per finished run of an '
+        "adaptive-lambda algorithm, lambda after its first and its last epoch; change: last - first, mean "
+        "over seeds with the 95% CI of a one-sample t-test; epochs lambda fell: the share of epochs whose "
+        "update lowered it, averaged over seeds. Verdict: confirmed when the CI lies below 0, contradicted "
+        "when above, undecided otherwise. Its course per epoch: lambda_alpha.png.",
+        "The learned lambda's pace (Fig. 4b judged on what the optimiser allows): lambda = sigmoid(phi) and "
+        "phi takes one AdamW step per lambda update, about the learning rate in size whenever the gradient "
+        "keeps its sign, so a fall in every epoch says only that the sign never turned. Per finished run, "
+        "the change of phi from logit(0.95) to its final value against the limit updates x learning rate; "
+        "verdict: at the optimiser's rate limit when every seed used 90% of it or more (the data set only "
+        "the sign), slower than the optimiser allows when phi fell (95% t CI over seeds below 0) using "
+        "less (the data, or the gradient's varying size, set the pace), undecided otherwise.",
+        "Actor-gradient variance over training (Fig. 2): per run the median over epochs of the logged "
+        "variance (raw, and the scale-free noise-to-signal ratio), per seed pair variant / base; the ratio "
+        "is the geometric mean over pairs with the 95% t interval of the paired log-ratios. Verdict: "
+        "confirmed when the interval lies below 1, contradicted above 1 at the paper's protocol (not "
+        "confirmed at this budget elsewhere), undecided otherwise. The levels are shown beside the paper's "
+        "descriptively: the variance scales with the loss, whose normalisation differs between "
+        "implementations. The curves: grad_variance_training.png.",
+        f"Forward locomotion: a policy moves forward when its forward velocity (as above) reaches "
+        f"{LOCOMOTION_SPEED} m/s, a slow walk for a legged robot of the Go2's or the Ant's size and above the "
+        "drift of a policy that stands still or falls over (the untrained policies' column shows that "
+        "drift). Per setting and algorithm, over the training seeds whose evaluation recorded a velocity: "
+        "the untrained and the final policies' velocity (mean over seeds), the final one's 95% CI of a "
+        "one-sample t-test, and the seeds that reach the speed. Verdict: moves forward when the CI lies "
+        "above the speed, does not when below, undecided otherwise. Where the paper says whether an "
+        "algorithm acquires forward locomotion on a task (Sec. V-E: the Go2's SHAC does not, at the "
+        "paper's budget; its SHAC-TDAdpt improves on that markedly), the claim is confirmed when the "
+        "verdict agrees, contradicted when it disagrees.",
+        "Runs without eval.json (unfinished) are left out of these tables.",
+    ]
 
 
 def aggregate_document(runs: list[RunRecord]) -> Table:

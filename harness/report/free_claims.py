@@ -45,6 +45,7 @@ from algorithms.config import AlgoConfig
 from harness.report.records import RunRecord, base_algo, by_group, metric_column, value_or_range
 from harness.report.sequential import CONFIRMED, CONTRADICTED, NOT_CONFIRMED, UNDECIDED, at_paper_protocol
 from harness.report.stats import epoch_median
+from harness.run_folder import CONFIG
 
 CONFIDENCE = 0.95
 GRADIENT_STATISTICS = ("actor_grad_var", "actor_grad_nsr")  # the raw variance (Fig. 2's) and the noise-to-signal
@@ -255,7 +256,7 @@ class LambdaOptimiser:
     def of(cls, run: RunRecord) -> LambdaOptimiser:
         """The run's settings: config.json's ``algo`` section beside its metrics (defaults where absent)."""
         try:
-            algo = json.loads((Path(run.path) / "config.json").read_text()).get("algo") or {}
+            algo = json.loads((Path(run.path) / CONFIG).read_text()).get("algo") or {}
         except (OSError, ValueError):
             algo = {}
         given = {f.name: algo[f.name] for f in fields(cls) if algo.get(f.name) is not None}

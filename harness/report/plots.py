@@ -515,15 +515,46 @@ def plot_scaling(rows: list[dict], path: Path, title: str = "") -> Path:
     return save_figure(fig, path)
 
 
+def plot_landscape(result: dict, path) -> Path:
+    """Both surfaces side by side as filled contours (own colour scale per panel), roughness in the titles.
+
+    x is the first direction's coefficient (``alphas``), y the second's (``betas``); the cross marks
+    the trained policy. Non-finite points are left blank. Written atomically (temporary file, rename).
+    """
+    plt, sns = pyplot()
+
+    alphas, betas = np.asarray(result["alphas"]), np.asarray(result["betas"])
+    labels = {
+        "h_step": "h-step return (eq. 9)",
+        "td_lambda": f"TD-lambda return (eq. 12), lambda={result['lambda']:.3f}",
+    }
+    sns.set_theme(style="white")
+    fig, axes = plt.subplots(1, 2, figsize=(12, 5))
+    for ax, name in zip(axes, labels, strict=True):
+        # surfaces are indexed [alpha, beta]; contourf wants [y, x]
+        z = np.ma.masked_invalid(np.asarray(result["losses"][name], dtype=np.float64).T)
+        filled = ax.contourf(alphas, betas, z, levels=30, cmap="viridis")
+        ax.contour(alphas, betas, z, levels=15, colors="k", linewidths=0.3, alpha=0.5)
+        fig.colorbar(filled, ax=ax, label="actor loss")
+        ax.plot([0.0], [0.0], marker="x", color="red", markersize=8)
+        r = result["roughness"][name]
+        ax.set_title(f"{labels[name]}\nroughness {r:.3f}" if r is not None else f"{labels[name]}\nroughness n/a")
+        ax.set_xlabel("alpha (direction 1)")
+        ax.set_ylabel("beta (direction 2)")
+        ax.set_aspect("equal")
+    fig.suptitle(
+        f"{result['task']} / {result['backend']} / {result['algo']}: {result['grid']}x{result['grid']} grid, "
+        f"{result['num_envs']} envs, h={result['horizon']}"
+    )
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
 def plot_landscapes(runs: list[RunRecord], out_dir: Path) -> tuple[list[Path], list[str]]:
-    """One PNG per landscape.json through ``harness.landscape.plot_landscape`` when that module imports."""
+    """One PNG per run's landscape.json (:func:`plot_landscape`)."""
     landscapes = [r for r in runs if r.landscape is not None]
     if not landscapes:
         return [], []
-    try:
-        from harness.landscape import plot_landscape
-    except Exception as exc:  # written in parallel; the table does not need it
-        return [], [f"landscape_*.png: harness.landscape.plot_landscape unavailable ({type(exc).__name__}: {exc})"]
     written, skipped = [], []
     for run in landscapes:
         name = f"landscape_{run.task}_{run.backend}_{run.algo}_h{run.horizon}_s{run.seed}.png"

@@ -16,11 +16,21 @@ import pandas as pd
 
 from algorithms.config import ALGORITHMS
 from harness.results import RunError, read_metrics
+from harness.run_folder import (
+    CONFIG,
+    EVALUATION,
+    LANDSCAPE,
+    METRICS,
+    OLDER_ON_ENGINE,
+    ON_ENGINE,
+    STEP_GAIN,
+    engine_evaluations,
+)
 
 ALGO_ORDER = ALGORITHMS  # the order tables and plots list algorithms in
 VARIANT_SUFFIXES = ("-tdfixed", "-tdadpt")
 BACKEND_ORDER = ("newton", "mujoco_warp")
-SIM_TO_SIM_PREFIXES = ("eval_on_", "sim2sim_on_")  # `harness eval --backend` and the suite's sim-to-sim jobs
+SIM_TO_SIM_PREFIXES = (ON_ENGINE, *OLDER_ON_ENGINE)  # evaluations on a named engine, older names included
 
 
 # -- inputs ---------------------------------------------------------------------------------------
@@ -119,7 +129,7 @@ def base_algo(algo: str) -> str:
 
 def collect_runs(root: Path) -> list[Path]:
     """Every directory under ``root`` (``root`` included) that holds a ``config.json``, sorted."""
-    return sorted({p.parent for p in Path(root).rglob("config.json") if p.is_file()})
+    return sorted({p.parent for p in Path(root).rglob(CONFIG) if p.is_file()})
 
 
 def say(stream, message: str) -> None:
@@ -182,7 +192,7 @@ def backend_label(backend: str, config: dict) -> str:
 def load_run(run_dir: Path, stream=None) -> RunRecord | None:
     """Read one run directory; None (said on ``stream``) when its config.json is missing or unusable."""
     run_dir = Path(run_dir)
-    config = _read_json(run_dir / "config.json", stream)
+    config = _read_json(run_dir / CONFIG, stream)
     try:
         algo_cfg = config["algo"]
         task, backend, algo = str(config["task"]), str(config["backend"]), str(algo_cfg["algo"])
@@ -191,7 +201,7 @@ def load_run(run_dir: Path, stream=None) -> RunRecord | None:
         say(stream, f"skipped {run_dir}: no usable config.json (task, backend, seed, algo.algo, algo.horizon)")
         return None
     try:
-        rows = read_metrics(run_dir / "metrics.jsonl")
+        rows = read_metrics(run_dir / METRICS)
     except RunError as exc:
         say(stream, f"{run_dir}: metrics ignored: {exc}")
         rows = []
@@ -199,7 +209,7 @@ def load_run(run_dir: Path, stream=None) -> RunRecord | None:
     if "epoch" in metrics:
         # a resumed run may repeat the epochs after its last checkpoint: the later rows are the ones that count
         metrics = metrics.drop_duplicates("epoch", keep="last").sort_values("epoch").reset_index(drop=True)
-    evaluation = _read_json(run_dir / "eval.json", stream)
+    evaluation = _read_json(run_dir / EVALUATION, stream)
     if evaluation is not None and not _has_returns(evaluation):
         say(stream, f"{run_dir}/eval.json has no initial/final mean_return: counted as not evaluated")
         evaluation = None
@@ -210,15 +220,14 @@ def load_run(run_dir: Path, stream=None) -> RunRecord | None:
         )
         evaluation = None
     cross = {}
-    for prefix in SIM_TO_SIM_PREFIXES:
-        for path in sorted(run_dir.glob(f"{prefix}*.json")):
-            payload = _read_json(path, stream)
-            if _has_returns(payload):
-                payload.setdefault("backend", path.stem[len(prefix) :])
-                payload.setdefault("trained_on", backend)
-                cross[path.name] = payload
-    landscape = _read_json(run_dir / "landscape.json", stream)
-    step_gain = _read_json(run_dir / "step_gain.json", stream)
+    for _, engine, path in engine_evaluations(run_dir):
+        payload = _read_json(path, stream)
+        if _has_returns(payload):
+            payload.setdefault("backend", engine)
+            payload.setdefault("trained_on", backend)
+            cross[path.name] = payload
+    landscape = _read_json(run_dir / LANDSCAPE, stream)
+    step_gain = _read_json(run_dir / STEP_GAIN, stream)
     return RunRecord(
         path=run_dir,
         task=task_label(task, config),

@@ -24,11 +24,16 @@ from harness.report.plots import (
     pyplot,
 )
 from harness.report.records import by_group, load_check, load_run, say
+from harness.report.swap import commit, stage
 from harness.results import atomic_write_bytes, atomic_write_text
 
 
-def write_bench_report(runs: list[Path], checks: list[Path], out_dir: Path, header: dict, stream=None) -> list[Path]:
-    """Write every table (Markdown, CSV, provenance JSON) and plot of the suite into ``out_dir``.
+def write_bench_report(
+    runs: list[Path], checks: list[Path], out_dir: Path, header: dict, stream=None, also=None
+) -> list[Path]:
+    """Write every table (Markdown, CSV, provenance JSON) and plot of the suite into ``out_dir``, replacing
+    the previous report as one set (:mod:`harness.report.swap`); ``also(folder)`` writes further files of
+    the set into ``folder`` and returns their paths.
 
     ``runs``: run directories (config.json, metrics.jsonl, optional eval.json, eval_on_*.json,
     sim2sim_on_*.json, landscape.json); ``checks``: check JSON files; ``header``: ``provenance()`` plus
@@ -36,7 +41,6 @@ def write_bench_report(runs: list[Path], checks: list[Path], out_dir: Path, head
     listed in index.md.
     """
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     unique_runs = list(dict.fromkeys(Path(r).resolve() for r in runs))
     records = [rec for rec in (load_run(r, stream) for r in unique_runs) if rec is not None]
     check_records = [c for c in (load_check(Path(p), stream) for p in dict.fromkeys(checks)) if c is not None]
@@ -46,11 +50,11 @@ def write_bench_report(runs: list[Path], checks: list[Path], out_dir: Path, head
         if repeated:
             say(stream, f"group {key} has seed(s) {repeated} more than once (different run directories): all counted")
 
-    written: list[Path] = []
+    staged = stage(out_dir)
     tables = build_tables(records, check_records)
     main = {table.name: table.sections[0].frame for table in tables}  # the plots draw from the tables' numbers
     for table in tables:
-        written += write_table(table, out_dir, header)
+        write_table(table, staged, header)
 
     plots: list[tuple[str, Callable[[Path], Path]]] = [
         ("learning_curves_steps.png", lambda p: plot_learning_curves(records, "env_steps", p)),
@@ -64,28 +68,27 @@ def write_bench_report(runs: list[Path], checks: list[Path], out_dir: Path, head
         ("scaling.png", lambda p: plot_scaling(scaling_rows(check_records), p)),
         ("performance_profile.png", lambda p: plot_performance_profiles(records, p)),
     ]
-    plotted, skipped = [], []
+    plotted, skipped, unplotted = [], [], []
     for name, draw in plots:
-        path = out_dir / name
         try:
-            plotted.append(draw(path))
+            plotted.append(draw(staged / name))
         except NoPlotData as reason:
             skipped.append(f"{name}: {reason}")
-            path.unlink(missing_ok=True)  # a figure from an earlier report would pass for this one
+            unplotted.append(name)  # a figure from an earlier report would pass for this one
         except Exception as exc:  # a plot must not cost the tables of a finished suite
             skipped.append(f"{name}: failed: {type(exc).__name__}: {exc}")
-            path.unlink(missing_ok=True)
+            unplotted.append(name)
             pyplot()[0].close("all")  # the half-drawn figure
-    plotted += copy_filmstrips(records, out_dir)
-    landscape_pngs, landscape_skipped = plot_landscapes(records, out_dir)
+    plotted += copy_filmstrips(records, staged)
+    landscape_pngs, landscape_skipped = plot_landscapes(records, staged)
     plotted += landscape_pngs
     skipped += landscape_skipped
     for line in skipped:
         say(stream, f"skipped plot {line}")
-    written += plotted
-    headline = headline_lines(tables, records, plotted)
-    written.append(write_index(tables, plotted, skipped, out_dir, header, headline))
-    return written
+    write_index(tables, plotted, skipped, staged, header, headline_lines(tables, records, plotted))
+    if also is not None:
+        also(staged)
+    return commit(out_dir, remove=tuple(unplotted))
 
 
 def scaling_rows(checks) -> list[dict]:
@@ -156,7 +159,7 @@ def filmstrip_description(name: str) -> str:
 def _other_description(name: str) -> str:
     if name.startswith("filmstrip_"):
         return filmstrip_description(name)
-    return "actor-loss landscape, h-step vs TD-lambda (harness.landscape.plot_landscape)"
+    return "actor-loss landscape, h-step vs TD-lambda (harness.report.plots.plot_landscape)"
 
 
 def write_index(

@@ -34,6 +34,7 @@ from harness.report.stats import (
     sample_std,
     seeds_needed,
 )
+from harness.run_folder import EVALUATION
 
 TIME_PARTS = (  # (column stem, label, metrics field)
     ("sim_forward", "sim forward", "sim_forward_s"),
@@ -528,7 +529,7 @@ def sim_to_sim_table(runs: list[RunRecord]) -> pd.DataFrame:
             if own_name in run.cross_evaluations:
                 own, own_source = run.cross_evaluations[own_name], own_name
             elif run.evaluation is not None:
-                own, own_source = run.evaluation, "eval.json"
+                own, own_source = run.evaluation, EVALUATION
             else:
                 own, own_source = None, None
             own_return = own["final"]["mean_return"] if own else math.nan
@@ -744,7 +745,7 @@ def check_settings(check: CheckRecord) -> str | None:
     ``fd_scheme=forward, fd_eps_state=2e-3``; None at the defaults."""
     import shlex
 
-    from harness.cli.parser import physics_words
+    from harness.words import physics_words
 
     try:
         preset, options = physics_words(shlex.split(str(check.provenance.get("command") or "")))
