@@ -888,3 +888,33 @@ def test_returns_against_h_compare_horizons_at_one_budget_only(tmp_path):
     assert h32["wall_min_mean"] == pytest.approx(4 * EPOCH_S / 60.0)
     png = plot_returns_vs_h(table, tmp_path / "returns_vs_h.png")
     assert png.is_file() and png.stat().st_size > 1000
+
+
+def test_readmes_result_tables_are_the_ones_the_results_make(tmp_path):
+    """README's headline tables are generated from the result files they cite (``python -m harness
+    readme``): the committed README matches the committed results, and a changed result makes the check
+    name its block and the update rewrite exactly that block."""
+    import shutil
+
+    from harness.report.readme import BLOCKS, update_readme
+
+    root = Path(__file__).resolve().parents[1]
+    assert update_readme(root / "README.md", root, check=True) == []
+    copy = tmp_path / "repo"
+    for folder in ("results/bench/protocol", "results/bench/standard"):
+        (copy / folder).mkdir(parents=True)
+        for name in ("returns.csv", "returns_claims.csv"):
+            if (root / folder / name).is_file():
+                shutil.copy(root / folder / name, copy / folder / name)
+    shutil.copy(root / "README.md", copy / "README.md")
+    claims = copy / "results/bench/protocol/returns_claims.csv"
+    text = claims.read_text()
+    first = text.splitlines()[1]
+    fields = first.split(",")
+    fields[12] = "0.123"  # shac-tdfixed's measured change
+    claims.write_text(text.replace(first, ",".join(fields)))
+    assert update_readme(copy / "README.md", copy, check=True) == ["protocol-ant"]
+    assert update_readme(copy / "README.md", copy) == ["protocol-ant"]
+    assert "+12% [" in (copy / "README.md").read_text()
+    assert update_readme(copy / "README.md", copy, check=True) == []
+    assert set(BLOCKS) == {"protocol-ant", "standard-returns"}

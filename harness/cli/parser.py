@@ -408,6 +408,11 @@ def _run_verbs(sub) -> None:
     p.add_argument("--dry-run", action="store_true", help="list the jobs, their state and estimated cost; run none")
     p.add_argument("--report-only", action="store_true", help="write the tables and plots from what is finished")
 
+    p = sub.add_parser("readme", help="make README's headline tables from the result files they cite")
+    p.add_argument("--check", action="store_true", help="write nothing; exit 1 naming the blocks that differ")
+    p.add_argument("--readme", type=_text, default="README.md", help="the README to update (default: %(default)s)")
+    p.add_argument("--root", type=_text, default=".", help="the repository the results are under (default: .)")
+
     p = sub.add_parser("bench-run", help="(used by bench) train or resume one planned run, then evaluate it")
     p.add_argument("run_dir", help="a run directory planned by bench (holds job.json)")
 

@@ -169,6 +169,25 @@ def cmd_bench(args) -> int:
     )
 
 
+def cmd_readme(args) -> int:
+    """README's result blocks made anew from the results (harness/report/readme.py)."""
+    from pathlib import Path
+
+    from harness.report.readme import update_readme
+
+    readme = Path(args.readme)
+    if not readme.is_file():
+        raise BadInput(f"--readme {args.readme}: no such file")
+    if not args.check:
+        check_output(args.readme)
+    changed = update_readme(readme, Path(args.root), check=args.check)
+    if args.check and changed:
+        print(f"{readme}: block(s) {', '.join(changed)} differ from the results; run python -m harness readme")
+        return 1
+    print(f"{readme}: {'rewrote ' + ', '.join(changed) if changed else 'every block matches the results'}")
+    return 0
+
+
 def cmd_bench_run(args) -> int:
     from harness.runner import bench_run
 

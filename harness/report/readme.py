@@ -1,0 +1,149 @@
+"""README's headline tables, made from the result files they cite so that they cannot drift from them.
+
+Each block sits in README between ``<!-- results:NAME -->`` and ``<!-- /results:NAME -->`` and is the
+output of one function over the committed tables (:data:`BLOCKS`). ``python -m harness readme`` writes
+every block anew; ``--check`` only compares and names the blocks that differ, which a test runs on the
+repository's README, so a result re-made without its README block fails the tests.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import re
+from collections.abc import Callable
+from pathlib import Path
+
+from harness.results import RunError, atomic_write_text
+
+PROTOCOL = Path("results/bench/protocol")
+ALGORITHM_NAMES = {
+    "shac": "SHAC",
+    "shac-tdfixed": "SHAC-TDFixed",
+    "shac-tdadpt": "SHAC-TDAdpt",
+    "sapo": "SAPO",
+    "sapo-tdfixed": "SAPO-TDFixed",
+    "sapo-tdadpt": "SAPO-TDAdpt",
+}
+
+
+def _rows(path: Path) -> list[dict]:
+    try:
+        with open(path, newline="") as handle:
+            return list(csv.DictReader(handle))
+    except OSError as exc:
+        raise RunError(f"README's tables read {path}, which cannot be read ({exc.strerror})") from None
+
+
+def _pct(value: str) -> str:
+    number = float(value)
+    return "unbounded" if not math.isfinite(number) else f"{100 * number:+.0f}%"
+
+
+def _interval(row: dict) -> str:
+    low, high = row["change_ci_low"], row["change_ci_high"]
+    if not low or not high:
+        return "n/a"
+    return f"[{_pct(low)}, {_pct(high)}]"
+
+
+def _design(row: dict) -> str:
+    if row["design"] == "continue":
+        return f"continue to {row['seeds_wanted']} seeds"
+    if row["design"] == "before first look":
+        return f"to {row['seeds_wanted']} seeds, then the first look"
+    return row["design"]
+
+
+def protocol_ant(root: Path) -> str:
+    """The Ant protocol's final returns and each TD-lambda variant's claim against its base."""
+    setting = {"task": "ant", "backend": "newton", "num_envs": "64", "horizon": "32", "epochs": "2000"}
+    returns = [r for r in _rows(root / PROTOCOL / "returns.csv") if all(r[k] == v for k, v in setting.items())]
+    claims = {
+        r["algo"]: r
+        for r in _rows(root / PROTOCOL / "returns_claims.csv")
+        if r["metric"] == "return" and all(r[k] == v for k, v in setting.items())
+    }
+    lines = [
+        "| algorithm (seeds) | IQM (descriptive) | vs its base: mean ratio - 1, seed-paired [interval] "
+        "| paper's claim: verdict | design |",
+        "|---|---|---|---|---|",
+    ]
+    for row in sorted(returns, key=lambda r: list(ALGORITHM_NAMES).index(r["algo"])):
+        claim = claims.get(row["algo"])
+        cells = [f"{ALGORITHM_NAMES[row['algo']]} ({row['seeds']})", f"{float(row['iqm_final']):.0f}", "", "", ""]
+        if claim is not None:
+            level = f"{100 * float(claim['confidence']):g}%"
+            look = (
+                f"the {claim['pairs']}-pair look" if claim["look"] else f"{claim['pairs']} pairs, before the first look"
+            )
+            cells[2] = f"{_pct(claim['measured_change'])} {_interval(claim)} ({level}, {look})"
+            cells[3] = f"{_pct(claim['claimed_change'])}: {claim['verdict'].split(' (')[0]}"
+            cells[4] = _design(claim)
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+STANDARD = Path("results/bench/standard")
+TASK_NAMES = {"ant": "Ant", "go2": "Go2", "soft_jumper": "SoftJumper"}
+
+
+def standard_returns(root: Path) -> str:
+    """The standard profile's final returns: per task, the one setting (N, h, epochs) where all six
+    algorithms trained on Newton, IQM [95% bootstrap CI] (seeds)."""
+    rows = [r for r in _rows(root / STANDARD / "returns.csv") if r["backend"] == "newton" and r["task"] in TASK_NAMES]
+    lines = [
+        "| task (N x h x epochs = env steps per run) | " + " | ".join(ALGORITHM_NAMES) + " |",
+        "|---" * (len(ALGORITHM_NAMES) + 1) + "|",
+    ]
+    for task, name in TASK_NAMES.items():
+        settings: dict[tuple, dict] = {}
+        for r in rows:
+            if r["task"] == task:
+                settings.setdefault((r["num_envs"], r["horizon"], r["epochs"], r["env_steps"]), {})[r["algo"]] = r
+        full = [key for key, algos in settings.items() if set(algos) == set(ALGORITHM_NAMES)]
+        if len(full) != 1:
+            raise RunError(
+                f"{STANDARD / 'returns.csv'}: {task} has {len(full)} settings with all six algorithms, not one"
+            )
+        (envs, horizon, epochs, steps), algos = full[0], settings[full[0]]
+        cells = [f"{name} ({envs} x {horizon} x {epochs} = {int(steps):,})"]
+        for algo in ALGORITHM_NAMES:
+            iqm, low, high = (float(algos[algo][k]) for k in ("iqm_final", "iqm_ci_low", "iqm_ci_high"))
+            cells.append(f"{iqm:.0f} [{low:.0f}, {high:.0f}] ({algos[algo]['seeds']})")
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+#: block name -> the function that makes it from the repository root
+BLOCKS: dict[str, Callable[[Path], str]] = {"protocol-ant": protocol_ant, "standard-returns": standard_returns}
+
+
+def _pattern(name: str) -> re.Pattern:
+    return re.compile(rf"(<!-- results:{re.escape(name)} -->\n)(.*?)(\n<!-- /results:{re.escape(name)} -->)", re.S)
+
+
+def render(text: str, root: Path) -> tuple[str, list[str]]:
+    """``text`` with every block made anew, and the names of the blocks that changed. A block README
+    lacks is refused: its markers name where it goes."""
+    changed = []
+    for name, make in BLOCKS.items():
+        pattern = _pattern(name)
+        if not pattern.search(text):
+            raise RunError(f"README has no block {name!r} (between <!-- results:{name} --> and its closing marker)")
+        fresh = make(root)
+        current = pattern.search(text).group(2)
+        if current != fresh:
+            changed.append(name)
+            text = pattern.sub(lambda m, fresh=fresh: m.group(1) + fresh + m.group(3), text)
+    return text, changed
+
+
+def update_readme(readme: Path, root: Path, check: bool = False) -> list[str]:
+    """Make README's blocks from the results under ``root``; with ``check``, write nothing. Returns the
+    names of the blocks that differed."""
+    text = readme.read_text()
+    fresh, changed = render(text, root)
+    if changed and not check:
+        atomic_write_text(readme, fresh)
+    return changed
