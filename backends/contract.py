@@ -47,6 +47,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 from abc import ABC, abstractmethod
+from typing import ClassVar
 
 import torch
 
@@ -81,6 +82,24 @@ def option_number(
 
 #: how a :meth:`BatchedSim.physics_mapping` entry says that a field cannot act on this task
 INERT = "inert: "
+
+
+MIB = 1 << 20
+
+
+@dataclasses.dataclass(frozen=True)
+class TaskCost:
+    """What one task costs on an engine, as the adapter measured it: planning figures for the suite's
+    first time estimate and for refusing a size the machine cannot hold, never a result. Memory is the
+    growth of peak resident memory per env (docs/performance.md has the command that measures it)."""
+
+    #: seconds per env step of a training epoch (simulation with gradients and the updates)
+    train_s: float
+    #: seconds per env step of an evaluation (no gradients)
+    eval_s: float
+    #: bytes one env adds without gradients, with gradients once (finite-difference worlds), and with
+    #: gradients per step of the window; None: not measured (no memory estimate, nothing refused)
+    bytes_per_env: tuple[float, float, float] | None = None
 
 
 def inert_by_definition(task: TaskSpec) -> dict[str, str]:
@@ -133,6 +152,15 @@ class BatchedSim(ABC):
     #: the keyword options the adapter reads; any other is refused at build time (a misspelt option
     #: would otherwise be silently ignored). ``None``: the adapter does not declare them (unchecked).
     known_options: tuple[str, ...] | None = None
+    #: optional planning figures per task name, and per task under one option (``"ant gradients=adjoint"``);
+    #: a task without one gets the suite's generic guess and no memory refusal (:meth:`task_cost`)
+    costs: ClassVar[dict[str, TaskCost]] = {}
+    #: optional: where results tables list this engine among others, lower first
+    table_rank: int = 100
+    #: optional: what ``contact-jacobians`` compares this adapter's step Jacobians with: "differences"
+    #: (its own central differences over a sweep of steps) or "mujoco_c" (MuJoCo C in float64, for an
+    #: adapter of MuJoCo's own model)
+    contact_reference: str = "differences"
 
     def __init_subclass__(cls, **kwargs):
         """Every adapter's ``state_from_generalized`` checks its input first (:meth:`check_generalized`)."""
@@ -303,11 +331,21 @@ class BatchedSim(ABC):
         step with gradients costs a few forward steps."""
         return None
 
+    @classmethod
+    def task_cost(cls, task: str, options: dict | None = None) -> TaskCost | None:
+        """The adapter's planning figures for ``task`` (a preset's suffix ignored: the same robot) built
+        with ``options``: those measured under one of the options where there are, else the task's."""
+        task = task.split(".")[0]
+        for key, value in sorted((options or {}).items()):
+            if f"{task} {key}={value}" in cls.costs:
+                return cls.costs[f"{task} {key}={value}"]
+        return cls.costs.get(task)
+
     # -- adapter hooks --------------------------------------------------------------------
     @property
-    @abstractmethod
     def layout(self) -> StateLayout:
-        """Static layout of one env's state."""
+        """Static layout of one env's state: the task's, unless the engine's model lays it out otherwise."""
+        return self.task.layout
 
     @abstractmethod
     def _build(self) -> None:

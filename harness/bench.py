@@ -83,31 +83,9 @@ from harness.run_folder import (
 
 PROFILES_DIR = Path(__file__).resolve().parent / "profiles"
 
-# Seconds per env step of a training epoch (simulation with gradients and the updates) on this 2-core
-# CPU, from the runs in results/ (docs/cluster.md); the Newton Go2's at 64 envs from its throughput
-# against the Ant's (results/bench/perf/throughput.md), until a run of it at that size is committed.
-# Only the first ETA uses them: finished jobs correct them.
-_SECONDS_PER_ENV_STEP = {
-    ("newton", "ant"): 1.2e-3,
-    ("newton", "go2"): 2.5e-3,
-    ("newton", "soft_jumper"): 2e-2,
-    ("mujoco_warp", "ant"): 4e-2,
-    ("mujoco_warp", "go2"): 6e-2,
-    ("mujoco_warp", "soft_jumper"): 3e3,
-    # MuJoCo-Warp with its analytic adjoint (gradients=adjoint): results/adjoint/, scaled for the updates
-    ("mujoco_warp", "ant", "adjoint"): 5e-3,
-    ("mujoco_warp", "go2", "adjoint"): 8e-3,
-}
-# Seconds per env step an evaluation counts (every seed's envs for a whole episode, before and after
-# training): the protocol's Ant evaluations; the Go2's scaled by its forward throughput against the Ant's.
-_SECONDS_PER_EVAL_STEP = {
-    ("newton", "ant"): 1.25e-4,
-    ("newton", "go2"): 2.3e-4,
-    ("newton", "soft_jumper"): 4e-3,
-    ("mujoco_warp", "ant"): 5e-3,
-    ("mujoco_warp", "go2"): 6e-3,
-    ("mujoco_warp", "soft_jumper"): 1.0,
-}
+# The first ETA's seconds per env step where an adapter measured nothing for a task (a plug-in's, say):
+# a guess; finished jobs correct it. Adapters ship their own (backends.contract.TaskCost).
+GUESS_TRAIN_S, GUESS_EVAL_S = 5e-3, 1e-4
 _STARTUP_S = 12.0  # a job's process start, imports and model build (Warp kernels cached)
 
 
@@ -472,8 +450,10 @@ def memory_problem(jobs: list[Job], at_once: int, device: str = "cpu") -> str | 
         run = job.run
         if job.kind != "train" or run is None:
             continue
-        train = estimate_bytes(run.backend, run.task, run.num_envs, run.horizon)
-        evaluation = estimate_bytes(run.backend, run.task, run.eval_num_envs or 2 * run.num_envs, grads=False)
+        options = dict(run.backend_options)
+        train = estimate_bytes(run.backend, run.task, run.num_envs, run.horizon, options=options)
+        eval_envs = run.eval_num_envs or 2 * run.num_envs
+        evaluation = estimate_bytes(run.backend, run.task, eval_envs, grads=False, options=options)
         if train is not None:
             needs.append((max(train, evaluation or 0.0), job.label))
     have = available_bytes(device)
@@ -490,11 +470,22 @@ def memory_problem(jobs: list[Job], at_once: int, device: str = "cpu") -> str | 
     return f"{label} needs at least {gib(largest)}{together}; {device} has {gib(have)} free: {advice}"
 
 
-def _seconds_per_env_step(run: RunSpec) -> float:
-    """The first ETA's seconds per training env step of ``run`` (its backend, task and gradient mode)."""
-    mode = ("adjoint",) if dict(run.backend_options).get("gradients") == "adjoint" else ()
-    key = (run.backend, run.task, *mode)
-    return _SECONDS_PER_ENV_STEP.get(key, _SECONDS_PER_ENV_STEP.get(key[:2], 5e-3))
+def _check_scale(backend_names: list[str], task: str) -> float:
+    """How much longer than on the reference engine a check takes on ``backend_names``: 5x where one of
+    them takes over 1e-2 s per training env step (finite-difference gradients), else 1x."""
+    slowest = max(_seconds_per_env_step(b, task) for b in backend_names)
+    return 5.0 if slowest > 1e-2 else 1.0
+
+
+def _seconds_per_env_step(backend: str, task: str, options: dict | None = None, train: bool = True) -> float:
+    """The first ETA's seconds per env step of ``task`` on ``backend`` built with ``options``: training
+    (with gradients) or evaluation, as the adapter measured them, else the guess."""
+    from harness.resources import task_cost
+
+    cost = task_cost(backend, task, options)
+    if cost is None:
+        return GUESS_TRAIN_S if train else GUESS_EVAL_S
+    return cost.train_s if train else cost.eval_s
 
 
 def train_job(run: RunSpec, run_dir: Path) -> Job:
@@ -504,8 +495,9 @@ def train_job(run: RunSpec, run_dir: Path) -> Job:
     eval_envs = run.eval_num_envs or 2 * run.num_envs
     eval_steps = 2 * run.eval_seeds * eval_envs * _episode(run.task, run.eval_max_steps)
     left = max(run.epochs - _logged_epochs(run_dir / METRICS), 0) / max(run.epochs, 1)
-    estimate = _STARTUP_S + left * run.env_steps * _seconds_per_env_step(run)
-    estimate += eval_steps * _SECONDS_PER_EVAL_STEP.get((run.backend, run.task), 1e-4)
+    options = dict(run.backend_options)
+    estimate = _STARTUP_S + left * run.env_steps * _seconds_per_env_step(run.backend, run.task, options)
+    estimate += eval_steps * _seconds_per_env_step(run.backend, run.task, options, train=False)
     return Job(
         label=run_dir.name,
         kind="train",
@@ -715,7 +707,7 @@ def _check_jobs(data: dict, store: Path, device: str, known: dict) -> list[Job]:
                         kind=kind,
                         argv=_harness(kind, *words, *args, "--out", out),
                         output=out,
-                        estimate_s=_STARTUP_S + KINDS[kind].seconds * (5.0 if "mujoco_warp" in label_backend else 1.0),
+                        estimate_s=_STARTUP_S + KINDS[kind].seconds * _check_scale(label_backend.split("-"), task),
                         cost_key=(kind, label_backend, task),
                     )
                 )
@@ -806,7 +798,7 @@ class _Analyses:
                             argv=_harness("eval", "--run", source.run_dir, "--backend", backend, *words, "--out", out),
                             output=out,
                             estimate_s=_STARTUP_S
-                            + steps * _SECONDS_PER_EVAL_STEP.get((backend, source.run.task), 3e-3),
+                            + steps * _seconds_per_env_step(backend, source.run.task, train=False),
                             cost_key=("sim_to_sim", backend, source.run.task),
                             expect={"backend": backend} | {k: v for k, v in protocol.items()},
                             after=[source.label],
@@ -872,7 +864,7 @@ class _Analyses:
                         ),
                         output=out,
                         estimate_s=_STARTUP_S
-                        + gradient_steps * _SECONDS_PER_ENV_STEP.get((source.run.backend, source.run.task), 3e-3),
+                        + gradient_steps * _seconds_per_env_step(source.run.backend, source.run.task),
                         cost_key=("step_gain", source.run.backend, source.run.task),
                         expect={"states": states, "stride": stride, "num_envs": num_envs},
                         after=[source.label],
@@ -890,7 +882,7 @@ class _Analyses:
             compare = bool(block.get("compare", False))
 
             def video_of(job: Job, compare: bool = compare) -> Path:
-                shown = compared_backends(job.run.backend) if compare else [job.run.backend]
+                shown = compared_backends(job.run.backend, job.run.task) if compare else [job.run.backend]
                 return record_stem(job.run_dir, shown).with_suffix(".json")
 
             for source in self.with_final_policy(self.select(block, where, "backend"), where, video_of):

@@ -57,6 +57,7 @@ import numpy as np
 import torch
 
 # MuJoCo C stays behind the adapter package: the classifier and the accurate-solver model live there
+from backends.contract import BackendError
 from backends.mujoco_warp.reference import accurate_model, classify_step
 from harness.envs import make_sim
 
@@ -344,15 +345,18 @@ def contact_jacobians(
     """The check (module docstring): a summary over all states, per class and per source, and every
     state's row. ``policy_epochs`` 0 samples every state under random actions; ``options`` are the
     checked adapter's (for MuJoCo-Warp, its finite-difference settings)."""
+    import backends
     from tasks import make_task
 
-    if backend not in ("newton", "mujoco_warp"):
-        raise ValueError(f"the in-contact check has references for newton and mujoco_warp, not {backend!r}")
+    reference_kind = backends.get(backend).contact_reference
     task = make_task(task_name, preset=preset)
     if task.layout.num_particles:
         raise ValueError(f"{task_name}: soft bodies have no MuJoCo C reference; use crosscheck")
     sim = make_sim(backend, task, num_envs, device=device, seed=seed, horizon=4, **(options or {}))
-    mjw_sim = sim if backend == "mujoco_warp" else make_sim("mujoco_warp", task, num_envs, seed=seed, horizon=4)
+    try:  # MuJoCo's model of the task finds the contacts (and is the reference of MuJoCo's own adapters)
+        mjw_sim = sim if reference_kind == "mujoco_c" else make_sim("mujoco_warp", task, num_envs, seed=seed, horizon=4)
+    except (BackendError, ValueError, TypeError) as exc:
+        raise ValueError(f"contact-jacobians finds contacts with MuJoCo's model of the task: {exc}") from None
     model = accurate_model(mjw_sim.mjm)
 
     in_contact = contact_predicate(mjw_sim, model)
@@ -366,7 +370,7 @@ def contact_jacobians(
     lifted = q.clone()
     if task.layout.floating_base:
         lifted[:, 2] = task.airborne_height
-    if backend == "mujoco_warp":
+    if reference_kind == "mujoco_c":
         reference = "MuJoCo C float64, central differences (step 1e-6), solver tolerance 0"
 
         def check(q_, label):
@@ -384,7 +388,7 @@ def contact_jacobians(
         row["source"] = label
     control = check(lifted, f"the same states lifted to {task.airborne_height} m (control):")
     undamped = None
-    if backend == "newton" and task.physics.contact_kd > 0:
+    if reference_kind == "differences" and task.physics.contact_kd > 0:
         # the penalty law damps only while a contact closes (min(v_n, 0) kd): a kink at v_n = 0 that a
         # resting foot sits on; without it the step is smooth in contact and the tape must agree
         smooth = make_task(task_name, dataclasses.replace(task.physics, contact_kd=0.0), preset=preset)
@@ -412,7 +416,7 @@ def contact_jacobians(
         "control_in_contact": sum(r["contacts"] > 0 for r in control),
         "rows": rows,
     }
-    if backend == "newton":
+    if reference_kind == "differences":
         plateaus = [r["plateau_eps"] for r in rows]
         result["plateau_fraction"] = float(np.mean([p is not None for p in plateaus]))
         result["median_rel_error_per_eps"] = {

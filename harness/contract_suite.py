@@ -40,14 +40,15 @@ from tasks import make_task
 N = 3
 
 
-def contract_cases(backend_names=(), task_names=()) -> list[tuple[str, str]]:
+def contract_cases(backend_names=(), task_names=(), classes: dict | None = None) -> list[tuple[str, str]]:
     """(adapter, task) pairs: every named adapter (all registered ones if none are named) on each of
-    its ``contract_tasks`` (those among ``task_names`` when given)."""
+    its ``contract_tasks`` (those among ``task_names`` when given); ``classes`` names adapter classes that
+    are not registered."""
     names = tuple(backend_names) or tuple(backends.available())
     return [
         (name, task)
         for name in names
-        for task in backends.get(name).contract_tasks
+        for task in ((classes or {}).get(name) or backends.get(name)).contract_tasks
         if not task_names or task in task_names
     ]
 
@@ -87,11 +88,13 @@ class ContractSuite:
     backend_options: dict = {}
     #: the tasks to check, among each adapter's ``contract_tasks``; empty: all of them
     task_names: tuple[str, ...] = ()
+    #: adapter classes checked without registering them, by the name ``backend_names`` gives them
+    adapter_classes: dict = {}
 
     def pytest_generate_tests(self, metafunc):
         """pytest calls this for every test of the class: ``adapter`` takes each contract case."""
         if "adapter" in metafunc.fixturenames:
-            cases = contract_cases(self.backend_names, self.task_names)
+            cases = contract_cases(self.backend_names, self.task_names, self.adapter_classes)
             ids = [f"{b}-{t}" for b, t in cases]
             metafunc.parametrize("adapter", cases, ids=ids, indirect=True, scope="class")
 
@@ -100,7 +103,8 @@ class ContractSuite:
     def adapter(cls, request):
         """(adapter class, task instance) of one contract case."""
         name, task_name = request.param
-        return with_options(backends.get(name), cls.backend_options), make_task(task_name)
+        adapter_class = cls.adapter_classes.get(name) or backends.get(name)
+        return with_options(adapter_class, cls.backend_options), make_task(task_name)
 
     def test_state_shapes_and_dtypes(self, adapter):
         sim = _sim(adapter)

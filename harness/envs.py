@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import backends
 from simcore import PhysicsSpec
 from tasks import make_task
@@ -75,3 +77,24 @@ def run_task(config: dict, physics: PhysicsSpec | None = None):
     preset = record["preset"].split("+")[0] if has_presets else None
     physics = physics or PhysicsSpec(**physics_fields(config["physics"]))
     return make_task(config["task"], physics, preset=preset)
+
+
+@functools.cache
+def engine_rank(name: str) -> int | None:
+    """Where an installed engine's adapter asks to be listed (``table_rank``: the reference engine 0),
+    or None for a name that is no engine here or cannot load."""
+    if name not in backends.available():
+        return None
+    try:
+        return int(backends.get(name).table_rank)
+    except Exception:  # an adapter that cannot load here is named by the verb that builds it
+        return None
+
+
+def engines_for(task: str) -> list[str]:
+    """The installed engines whose adapters drive ``task``'s control kind, in table order."""
+    from tasks import task_class
+
+    kind = task_class(task.split(".")[0]).control_kind
+    ranked = sorted((r, name) for name in backends.available() if (r := engine_rank(name)) is not None)
+    return [name for _, name in ranked if kind in backends.get(name).supported_control_kinds()]

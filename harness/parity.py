@@ -1,6 +1,8 @@
-"""Do two engines simulate the same task? Measured from the same initial states and actions.
+"""Do engines simulate the same task? Measured from the same initial states and actions.
 
-``python -m harness parity --task T [--backends newton mujoco_warp]`` runs, on each backend:
+``python -m harness parity --task T [--backends A B ...]`` runs, on each backend (default: the two first
+installed engines, in the adapters' table order, that drive the task), and compares every other
+backend with the first:
 
 1. **Zero-action settle**: the task's default pose at its start height, zero actions for ``settle_s``
    seconds (2 s); trunk height and every joint angle at the end, and their path.
@@ -135,12 +137,15 @@ def open_loop(backends: list[str], task, num_envs: int, steps: int, seed: int) -
                     break
                 rows.append(torch.cat((state.root_pos, state.dof_q(sim.layout)), dim=1))
         paths[backend] = torch.stack(rows) if rows else torch.zeros(0, num_envs, 3 + task.layout.num_dofs)
-    a, b = (paths[name] for name in backends[:2])
-    n = min(a.shape[0], b.shape[0])
-    diff = a[:n] - b[:n]
-    pos = diff[..., :3].norm(dim=-1).pow(2).mean(dim=1).sqrt().tolist()
-    joints = diff[..., 3:].pow(2).mean(dim=(1, 2)).sqrt().tolist()
-    return {"steps_compared": n, "root_pos_rms_m": pos, "joint_rms_rad": joints}
+    reference = paths[backends[0]]
+    against = {}
+    for other in backends[1:]:
+        n = min(reference.shape[0], paths[other].shape[0])
+        diff = reference[:n] - paths[other][:n]
+        pos = diff[..., :3].norm(dim=-1).pow(2).mean(dim=1).sqrt().tolist()
+        joints = diff[..., 3:].pow(2).mean(dim=(1, 2)).sqrt().tolist()
+        against[other] = {"steps_compared": n, "root_pos_rms_m": pos, "joint_rms_rad": joints}
+    return against
 
 
 def first_episode_lengths(backend: str, task, num_envs: int, seeds: int, max_steps: int) -> list[int]:
@@ -177,7 +182,8 @@ def parity(
     seed: int = 0,
     progress=print,
 ) -> dict:
-    """Every measurement of the module docstring on ``backends`` (the first two are compared)."""
+    """Every measurement of the module docstring on ``backends``, each other backend compared with the
+    first: ``comparisons`` per other backend; ``gaps`` the largest over them, ``holds`` where every one holds."""
     from tasks import make_task
 
     task = make_task(task_name, preset=preset)
@@ -196,9 +202,22 @@ def parity(
             lengths = first_episode_lengths(backend, task, num_envs, seeds, max_steps)
             per[backend]["first_episode"] = {"mean": sum(lengths) / len(lengths), "lengths": lengths}
     progress(f"parity {task_name}: open-loop divergence ({steps} steps, {min(num_envs, 16)} envs)")
-    result["open_loop"] = open_loop(backends, task, min(num_envs, 16), steps, seed)
+    loops = open_loop(backends, task, min(num_envs, 16), steps, seed)
     result["per_backend"] = per
-    a, b = (per[name] for name in backends[:2])
+    result["comparisons"] = {
+        other: {**_compare(per[backends[0]], per[other]), "open_loop": loops[other]} for other in backends[1:]
+    }
+    first = result["comparisons"][backends[1]]
+    result["open_loop"] = first["open_loop"]  # the first pair's, as results of two engines always held
+    result["gaps"] = {k: max(c["gaps"][k] for c in result["comparisons"].values()) for k in first["gaps"]}
+    result["holds"] = {k: all(c["holds"][k] for c in result["comparisons"].values()) for k in first["holds"]}
+    result["passed"] = all(result["holds"].values())
+    result["settings"] = {"num_envs": num_envs, "seeds": seeds, "steps": steps, "max_steps": max_steps, "seed": seed}
+    return result
+
+
+def _compare(a: dict, b: dict) -> dict:
+    """The gaps between two backends' measurements and which targets they hold."""
     joint_gap = max(abs(x - y) for x, y in zip(a["settle"]["joint_q"], b["settle"]["joint_q"], strict=True))
 
     def rel(x: float, y: float) -> float:
@@ -211,85 +230,77 @@ def parity(
         "probe_deflection_rel": rel(a["probe_limit"]["deflection_rad"], b["probe_limit"]["deflection_rad"]),
         "episode_length_rel": rel(a["first_episode"]["mean"], b["first_episode"]["mean"]),
     }
-    result["gaps"] = gaps
-    result["holds"] = {
+    holds = {
         "settle_height": gaps["settle_height_m"] <= TARGETS["settle_height_m"],
         "settle_joints": gaps["settle_joint_rad"] <= TARGETS["settle_joint_rad"],
         "probe_penetration": gaps["probe_penetration_rel"] <= TARGETS["probe_rel"],
         "probe_deflection": gaps["probe_deflection_rel"] <= TARGETS["probe_rel"],
         "episode_length": gaps["episode_length_rel"] <= TARGETS["episode_length_rel"],
     }
-    result["passed"] = all(result["holds"].values())
-    result["settings"] = {"num_envs": num_envs, "seeds": seeds, "steps": steps, "max_steps": max_steps, "seed": seed}
-    return result
+    return {"gaps": gaps, "holds": holds}
 
 
 def table(result: dict) -> str:
-    """The measurements side by side, one line each, as a Markdown table."""
-    a, b = result["backends"][:2]
-    pa, pb = result["per_backend"][a], result["per_backend"][b]
+    """The measurements of every backend side by side, one line each, as a Markdown table; the gap is
+    the largest between the first backend and any other."""
+    names = result["backends"]
+    per = [result["per_backend"][name] for name in names]
+    vs = " vs ".join(names)
+    gap_head = "gap" if len(names) == 2 else f"largest gap to {names[0]}"
     lines = [
-        f"Parity of `{result['task']}` (preset `{result['preset']}`): {a} vs {b}",
+        f"Parity of `{result['task']}` (preset `{result['preset']}`): {vs}",
         "",
-        f"| measurement | {a} | {b} | gap | target | holds |",
-        "|---|---|---|---|---|---|",
+        f"| measurement | {' | '.join(names)} | {gap_head} | target | holds |",
+        "|---" * (len(names) + 4) + "|",
     ]
 
-    def row(name, x, y, gap, target, holds):
-        lines.append(f"| {name} | {x} | {y} | {gap} | {target} | {'yes' if holds else 'no'} |")
+    def row(name, values, gap, target, holds):
+        lines.append(f"| {name} | {' | '.join(values)} | {gap} | {target} | {'yes' if holds else 'no'} |")
 
     gaps, holds, targets = result["gaps"], result["holds"], result["targets"]
+    blank = [""] * len(names)
     row(
         "settle trunk height (m)",
-        f"{pa['settle']['height_m']:.4f}",
-        f"{pb['settle']['height_m']:.4f}",
+        [f"{p['settle']['height_m']:.4f}" for p in per],
         f"{gaps['settle_height_m']:.4f}",
         f"<= {targets['settle_height_m']}",
         holds["settle_height"],
     )
     row(
         "settle max joint-angle gap (rad)",
-        "",
-        "",
+        blank,
         f"{gaps['settle_joint_rad']:.4f}",
         f"<= {targets['settle_joint_rad']}",
         holds["settle_joints"],
     )
     row(
         "probe sphere penetration (m)",
-        f"{pa['probe_contact']['penetration_m']:.5f}",
-        f"{pb['probe_contact']['penetration_m']:.5f}",
+        [f"{p['probe_contact']['penetration_m']:.5f}" for p in per],
         f"{100 * gaps['probe_penetration_rel']:.1f}%",
-        f"<= {100 * targets['probe_rel']:.0f}% (law: {pa['probe_contact']['penalty_law_m']:.5f})",
+        f"<= {100 * targets['probe_rel']:.0f}% (law: {per[0]['probe_contact']['penalty_law_m']:.5f})",
         holds["probe_penetration"],
     )
     row(
         "probe hinge deflection (rad)",
-        f"{pa['probe_limit']['deflection_rad']:.5f}",
-        f"{pb['probe_limit']['deflection_rad']:.5f}",
+        [f"{p['probe_limit']['deflection_rad']:.5f}" for p in per],
         f"{100 * gaps['probe_deflection_rel']:.1f}%",
-        f"<= {100 * targets['probe_rel']:.0f}% (law: {pa['probe_limit']['penalty_law_rad']:.5f})",
+        f"<= {100 * targets['probe_rel']:.0f}% (law: {per[0]['probe_limit']['penalty_law_rad']:.5f})",
         holds["probe_deflection"],
     )
     row(
         "random-policy first episode (mean steps)",
-        f"{pa['first_episode']['mean']:.1f}",
-        f"{pb['first_episode']['mean']:.1f}",
+        [f"{p['first_episode']['mean']:.1f}" for p in per],
         f"{100 * gaps['episode_length_rel']:.1f}%",
         f"<= {100 * targets['episode_length_rel']:.0f}%",
         holds["episode_length"],
     )
-    loop = result["open_loop"]
-    for step in DIVERGENCE_REPORTED:
-        if step <= loop["steps_compared"]:
-            row(
-                f"open loop, step {step}: RMS root / joint gap",
-                "",
-                "",
-                f"{loop['root_pos_rms_m'][step - 1]:.4f} m / {loop['joint_rms_rad'][step - 1]:.4f} rad",
-                "measured",
-                True,
-            )
+    for other, comparison in (result.get("comparisons") or {names[1]: {"open_loop": result["open_loop"]}}).items():
+        loop = comparison["open_loop"]
+        for step in DIVERGENCE_REPORTED:
+            if step <= loop["steps_compared"]:
+                gap = f"{loop['root_pos_rms_m'][step - 1]:.4f} m / {loop['joint_rms_rad'][step - 1]:.4f} rad"
+                label = "" if len(names) == 2 else f" ({other})"
+                row(f"open loop, step {step}: RMS root / joint gap{label}", blank, gap, "measured", True)
     s = result["settings"]
     lines += [
         "",
@@ -311,10 +322,11 @@ def plot(result: dict, path: Path) -> Path:
         axes[0].plot([dt * (i + 1) for i in range(len(path_h))], path_h, label=backend)
         axes[2].hist(per["first_episode"]["lengths"], bins=30, alpha=0.5, label=backend)
     axes[0].set(title="zero-action settle", xlabel="time (s)", ylabel="trunk height (m)")
-    loop = result["open_loop"]
-    steps = range(1, loop["steps_compared"] + 1)
-    axes[1].plot(steps, loop["root_pos_rms_m"], label="root position (m)")
-    axes[1].plot(steps, loop["joint_rms_rad"], label="joint angles (rad)")
+    for other, comparison in (result.get("comparisons") or {result["backends"][1]: result}).items():
+        loop = comparison["open_loop"]
+        steps = range(1, loop["steps_compared"] + 1)
+        axes[1].plot(steps, loop["root_pos_rms_m"], label=f"root position (m), {other}")
+        axes[1].plot(steps, loop["joint_rms_rad"], label=f"joint angles (rad), {other}")
     axes[1].set(title="open-loop gap between engines", xlabel="step", ylabel="RMS over envs", yscale="log")
     axes[2].set(title="random-policy first episode", xlabel="steps", ylabel="envs")
     for ax in axes:

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from harness.results import RunError, atomic_write_bytes, provenance, slow_write_for_tests, write_json
+from harness.results import RunError, atomic_write_bytes, out_problem, provenance, slow_write_for_tests, write_json
 
 FILMSTRIP_FRAMES = 6
 EVAL_SEED = 10_000  # evaluate()'s first seed
@@ -154,21 +154,29 @@ def write_filmstrip(pictures: list[np.ndarray], path: Path) -> Path:
 def render(run_dir: str | Path, backends: list[str], steps: int, frames: int, stream=None) -> list[Path]:
     """Write the video and filmstrip of the run's final policy on ``backends`` (two: side by side). The run
     folder is checked for every backend before the first frame."""
+    from backends.contract import BackendError
     from harness.run_folder import CHECKPOINT, open_run
 
     run_dir = Path(run_dir)
     stream = stream or sys.stdout
     configs = [open_run(run_dir, (CHECKPOINT,), backend) for backend in backends]
+    stem = record_stem(run_dir, backends)
+    for path in (stem.with_suffix(".mp4"), stem.with_suffix(".gif"), _filmstrip(stem), stem.with_suffix(".json")):
+        problem = out_problem(path, "file", flag="render's output")
+        if problem:  # before the first frame, not after the last
+            raise RunError(problem)
     remove_leftovers(run_dir, stream)
     panels = []
     for backend, config in zip(backends, configs, strict=True):
         print(f"render {run_dir.name} on {backend}: {steps} steps at most, {frames} frames", file=stream, flush=True)
-        panels.append(frames_of(run_dir, config, backend, steps, frames)[0])
+        try:
+            panels.append(frames_of(run_dir, config, backend, steps, frames)[0])
+        except (BackendError, ValueError, TypeError) as exc:  # an engine that cannot build the task
+            raise RunError(f"render on {backend}: {backend} cannot run {config['task']}: {exc}") from None
     # an episode that ends earlier on one engine keeps showing its last frame beside the other
     longest = max(len(p) for p in panels)
     pictures = [np.concatenate([p[min(k, len(p) - 1)] for p in panels], axis=1) for k in range(longest)]
-    stem = record_stem(run_dir, backends)
-    written = [write_video(pictures, stem), write_filmstrip(pictures, stem.with_name(stem.name + "_filmstrip.png"))]
+    written = [write_video(pictures, stem), write_filmstrip(pictures, _filmstrip(stem))]
     record = {"backends": backends, "max_steps": steps, "frames": frames, "steps_shown": [len(p) for p in panels]}
     record |= {"files": [p.name for p in written], "provenance": provenance()}
     written.append(write_json(stem.with_suffix(".json"), record))
@@ -176,14 +184,19 @@ def render(run_dir: str | Path, backends: list[str], steps: int, frames: int, st
     return written
 
 
-def compared_backends(trained_on: str) -> list[str]:
-    """``--compare``'s engines: the one the run trained on, then the other of Newton and MuJoCo-Warp."""
-    import backends
+def compared_backends(trained_on: str, task: str) -> list[str]:
+    """``--compare``'s engines: the one the run trained on, then the first other installed engine (in the
+    adapters' table order) that drives the task's control kind."""
+    from harness.envs import engines_for
 
-    others = [b for b in ("newton", "mujoco_warp") if b != trained_on and b in backends.available()]
+    others = [name for name in engines_for(task) if name != trained_on]
     if not others:
-        raise RunError(f"--compare needs a second engine besides {trained_on}")
+        raise RunError(f"--compare needs a second installed engine besides {trained_on} that drives {task}")
     return [trained_on, others[0]]
+
+
+def _filmstrip(stem: Path) -> Path:
+    return stem.with_name(stem.name + "_filmstrip.png")
 
 
 def record_stem(run_dir: Path, backends: list[str]) -> Path:

@@ -4,9 +4,11 @@ in one line (the estimate and the limit) instead of running until the allocator 
 A window with gradients keeps its forward pass for the backward one: Newton's tape holds every
 substep's state, MuJoCo-Warp's finite differences hold each step's Jacobians beside its perturbed
 worlds. So training memory grows with envs x horizon, and evaluation (no gradients) with envs alone.
-The slopes below are the growth of peak resident memory between two env counts of the same command
-(``train --epochs 2`` at the task's horizon, ``eval`` at two ``--num-envs``), rounded down: the
-estimate is a lower bound, so what it refuses cannot fit, and what it lets through may still be tight.
+Each adapter ships its slopes (``costs``, :class:`backends.contract.TaskCost`): the growth of peak
+resident memory between two env counts of the same command (``train --epochs 2`` at the task's
+horizon, ``eval`` at two ``--num-envs``), rounded down: the estimate is a lower bound, so what it
+refuses cannot fit, and what it lets through may still be tight. An engine or task without slopes (a
+plug-in that measured none) gets no estimate and is never refused.
 The interpreter, torch and the model (about 1 GB here) are not counted. docs/performance.md has the
 command that measures them.
 """
@@ -14,39 +16,33 @@ command that measures them.
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
 
-MB = 1 << 20
-
-
-@dataclass(frozen=True)
-class Footprint:
-    """Bytes one env adds: without gradients; with gradients, once (finite-difference worlds) and per
-    step of the window."""
-
-    per_env: float
-    per_env_grads: float
-    per_env_step: float
+MB = 1 << 20  # for the messages
 
 
-# (backend, task) -> measured slopes. A backend or task not listed (a plug-in) gets no estimate.
-FOOTPRINTS = {
-    ("newton", "ant"): Footprint(per_env=0.15 * MB, per_env_grads=0.0, per_env_step=0.30 * MB),
-    ("newton", "go2"): Footprint(per_env=0.3 * MB, per_env_grads=0.0, per_env_step=0.45 * MB),
-    ("newton", "soft_jumper"): Footprint(per_env=0.0, per_env_grads=0.0, per_env_step=1.6 * MB),
-    ("mujoco_warp", "ant"): Footprint(per_env=0.04 * MB, per_env_grads=3.0 * MB, per_env_step=0.05 * MB),
-    ("mujoco_warp", "go2"): Footprint(per_env=0.05 * MB, per_env_grads=5.0 * MB, per_env_step=0.05 * MB),
-}
+def task_cost(backend: str, task: str, options: dict | None = None):
+    """The adapter's planning figures for ``task`` (:meth:`backends.contract.BatchedSim.task_cost`), or
+    None for an engine that is not installed, cannot load, or measured nothing for the task."""
+    import backends
 
-
-def estimate_bytes(backend: str, task: str, num_envs: int, horizon: int = 0, grads: bool = True) -> float | None:
-    """Bytes ``num_envs`` envs need beyond the process's fixed cost; windows of ``horizon`` steps when
-    ``grads``. None where nothing was measured."""
-    footprint = FOOTPRINTS.get((backend, task.split(".")[0]))
-    if footprint is None:
+    if backend not in backends.available():
         return None
-    grads_part = footprint.per_env_grads + footprint.per_env_step * horizon if grads else 0.0
-    return num_envs * (footprint.per_env + grads_part)
+    try:
+        return backends.get(backend).task_cost(task, options)
+    except Exception:  # a plug-in that fails to import is named by the verb that builds it
+        return None
+
+
+def estimate_bytes(
+    backend: str, task: str, num_envs: int, horizon: int = 0, grads: bool = True, options: dict | None = None
+) -> float | None:
+    """Bytes ``num_envs`` envs need beyond the process's fixed cost; windows of ``horizon`` steps when
+    ``grads``. None where the adapter measured nothing."""
+    cost = task_cost(backend, task, options)
+    if cost is None or cost.bytes_per_env is None:
+        return None
+    per_env, grads_once, per_step = cost.bytes_per_env
+    return num_envs * (per_env + (grads_once + per_step * horizon if grads else 0.0))
 
 
 def available_bytes(device: str = "cpu") -> float | None:

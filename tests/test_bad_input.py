@@ -10,6 +10,8 @@ from pathlib import Path
 import pytest
 import torch
 
+import backends
+
 pytest.importorskip("newton")
 
 from backends import InvalidActionError, InvalidStateError, make  # noqa: E402
@@ -307,6 +309,40 @@ CLI_CASES += [  # adapter options that cannot mean anything: refused when the ad
         "nconmax must be",
     ),
 ]
+if "pointmass" in backends.available():  # a plug-in named where it cannot serve: one line naming why
+    CLI_CASES += [
+        (
+            "contact-jacobians on an engine without MuJoCo's model",
+            [
+                "contact-jacobians",
+                "--backend",
+                "pointmass",
+                "--task",
+                "pointmass",
+                "--states",
+                "4",
+                "--policy-epochs",
+                "0",
+            ],
+            None,
+            "finds contacts with MuJoCo's model of the task",
+        ),
+        (
+            "render on an engine that cannot run the task",
+            ["render", "--run", "RUN", "--backend", "pointmass", "--max-steps", "2"],
+            None,
+            "pointmass cannot run ant",
+        ),
+        ("parity of a task without a floating base", ["parity", "--task", "pointmass"], None, "floating-base robots"),
+    ]
+CLI_CASES += [  # an output in the way, found before the work rather than after it
+    (
+        "render where its video's name is a folder",
+        ["render", "--run", "RUN", "--max-steps", "2"],
+        "video_folder",
+        "is a directory",
+    ),
+]
 DELETE = object()  # a config.json field removed, as a version that did not write it left it
 FOLDER_DAMAGES = [  # (what, config.json fields changed (dotted: nested), what the refusal says)
     ("fractional seed", {"seed": 1.5}, "seed is 1.5, not an integer"),
@@ -403,6 +439,8 @@ def _damage(run: Path, how: str | dict | None, monkeypatch) -> None:
         config = json.loads((run / "config.json").read_text())
         config["epochs"] = 2
         (run / "config.json").write_text(json.dumps(config))
+    elif how == "video_folder":
+        (run / "render_newton.mp4").mkdir()
     elif how == "no_cuda":
         monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
 

@@ -35,3 +35,41 @@ def test_the_penalty_constants_mean_the_same_on_both_engines(preset, tmp_path):
         limit = parity.probe_deflection(backend, task, tmp_path)
         assert contact["penetration_m"] == pytest.approx(contact["penalty_law_m"], rel=parity.TARGETS["probe_rel"])
         assert limit["deflection_rad"] == pytest.approx(limit["penalty_law_rad"], rel=parity.TARGETS["probe_rel"])
+
+
+def _measured(height: float, joints: list[float], penetration: float, deflection: float, length: float) -> dict:
+    return {
+        "settle": {"height_m": height, "joint_q": joints, "height_path": [height]},
+        "probe_contact": {"penetration_m": penetration, "penalty_law_m": 0.001},
+        "probe_limit": {"deflection_rad": deflection, "penalty_law_rad": 0.01},
+        "first_episode": {"mean": length, "lengths": [length]},
+    }
+
+
+def test_any_number_of_engines_is_compared_with_the_first_and_tabulated():
+    """Three engines: each other one is compared with the first, the verdict holds only where every
+    comparison does, and the table has a column per engine (a plug-in is tabulated as the built-ins)."""
+    per = {
+        "newton": _measured(0.25, [0.0, 0.1], 0.00100, 0.0100, 40.0),
+        "mujoco_warp": _measured(0.251, [0.0, 0.11], 0.00101, 0.0101, 42.0),
+        "third": _measured(0.30, [0.0, 0.1], 0.00100, 0.0100, 41.0),  # stands 5 cm higher
+    }
+    comparisons = {other: parity._compare(per["newton"], per[other]) for other in ("mujoco_warp", "third")}
+    assert comparisons["mujoco_warp"]["holds"]["settle_height"] and not comparisons["third"]["holds"]["settle_height"]
+    loop = {"steps_compared": 1, "root_pos_rms_m": [0.0], "joint_rms_rad": [0.0]}
+    result = {
+        "task": "ant",
+        "preset": "bench",
+        "backends": list(per),
+        "targets": parity.TARGETS,
+        "per_backend": per,
+        "comparisons": {k: {**v, "open_loop": loop} for k, v in comparisons.items()},
+        "gaps": {k: max(c["gaps"][k] for c in comparisons.values()) for k in comparisons["third"]["gaps"]},
+        "holds": {k: all(c["holds"][k] for c in comparisons.values()) for k in comparisons["third"]["holds"]},
+        "open_loop": loop,
+        "settings": {"num_envs": 4, "seeds": 1, "steps": 1, "max_steps": 10, "seed": 0},
+    }
+    text = parity.table(result)
+    assert "| measurement | newton | mujoco_warp | third | largest gap to newton | target | holds |" in text
+    assert "| settle trunk height (m) | 0.2500 | 0.2510 | 0.3000 | 0.0500 | <= 0.01 | no |" in text
+    assert "(third)" in text and "(mujoco_warp)" in text

@@ -146,3 +146,14 @@ def test_a_killed_render_leaves_no_video_and_a_rerun_clears_what_older_ones_left
     assert "removed tmpab12cd34.mp4" in out and "removed .render_newton.mp4.999999999.part" in out, out
     left = sorted(p.name for p in run.iterdir() if ".mp4" in p.name or p.name.endswith(".part"))
     assert left == ["notes.mp4"], left
+
+
+def test_compare_picks_the_next_installed_engine_that_drives_the_task():
+    """``--compare`` reads the engines from the registry in their adapters' table order: the reference
+    engine beside any other, and an engine that cannot drive the task's control kind is passed over."""
+    from harness.envs import engines_for
+    from harness.render import compared_backends
+
+    assert compared_backends("mujoco_warp", "ant") == ["mujoco_warp", "newton"]
+    assert compared_backends("newton", "go2") == ["newton", "mujoco_warp"]
+    assert "pointmass" not in engines_for("go2")  # position targets: the point mass drives forces only

@@ -19,7 +19,7 @@ and the plane; joint damping ``physics.joint_damping`` on the hinges; armature `
 (``contype``/``conaffinity``), as in the Newton adapter: only geom-ground contacts exist.
 
 Contacts and joint limits: MuJoCo's are soft constraints, Newton's (and the task's) penalty springs.
-:mod:`backends.mujoco_warp.penalty` converts the task's ``contact_ke/kd/kf`` and ``joint_limit_ke/kd``
+:mod:`backends.mujoco_penalty` converts the task's ``contact_ke/kd/kf`` and ``joint_limit_ke/kd``
 into direct-form ``solref``/``solreflimit`` with a constant impedance and an elliptic friction cone
 with ``impratio = kf / kd``, so that at rest and in steady sliding MuJoCo's forces are the penalty
 law's (``python -m harness parity`` measures it: probe penetration and limit deflection agree to
@@ -113,10 +113,10 @@ import torch
 import warp as wp
 
 from backends._warp import option_flag, warp_device
-from backends.contract import BackendError, BatchedSim, inert_by_definition, option_number
+from backends.contract import MIB, BackendError, BatchedSim, TaskCost, inert_by_definition, option_number
+from backends.mujoco_penalty import IMPEDANCE, apply_penalty_constants
 from backends.mujoco_warp.adjoint.step import control_step_vjp
 from backends.mujoco_warp.adjoint.tree import rigid_tree
-from backends.mujoco_warp.penalty import IMPEDANCE, apply_penalty_constants
 from backends.mujoco_warp.soft import SoftEnvModels
 from backends.mujoco_warp.stepping import SubstepReplay, run_substeps
 from backends.mujoco_warp.switches import ConstraintSignature
@@ -182,7 +182,7 @@ def build_spec(task) -> mujoco.MjSpec:
     for geom in spec.geoms:
         geom.friction[0] = phys.contact_mu
         geom.contype, geom.conaffinity = 1, 0  # collide with the ground only, never with each other
-        geom.priority = 1  # a robot geom's contact parameters win over the plane's (mujoco_warp.penalty)
+        geom.priority = 1  # a robot geom's contact parameters win over the plane's (backends.mujoco_penalty)
     for joint in spec.joints:
         if joint.type == mujoco.mjtJoint.mjJNT_HINGE:
             joint.damping[0] = phys.joint_damping
@@ -280,6 +280,18 @@ class MujocoWarpSim(BatchedSim):
 
     name = "mujoco_warp"
     contract_tasks = ("ant", "go2")
+    table_rank = 1
+    contact_reference = "mujoco_c"
+    # Planning figures on a 2-core CPU (as Newton's; the adjoint's from results/adjoint/, scaled for the
+    # updates). Finite differences hold every perturbed world once: the memory with gradients per env;
+    # the adjoint holds no perturbed world (its replay's per-step records counted as the forward's).
+    costs = {
+        "ant": TaskCost(train_s=4e-2, eval_s=5e-3, bytes_per_env=(0.04 * MIB, 3.0 * MIB, 0.05 * MIB)),
+        "go2": TaskCost(train_s=6e-2, eval_s=6e-3, bytes_per_env=(0.05 * MIB, 5.0 * MIB, 0.05 * MIB)),
+        "soft_jumper": TaskCost(train_s=3e3, eval_s=1.0),
+        "ant gradients=adjoint": TaskCost(train_s=5e-3, eval_s=5e-3, bytes_per_env=(0.04 * MIB, 0.0, 0.05 * MIB)),
+        "go2 gradients=adjoint": TaskCost(train_s=8e-3, eval_s=6e-3, bytes_per_env=(0.05 * MIB, 0.0, 0.05 * MIB)),
+    }
     known_options = (
         "gradients",
         "fd_scheme",
@@ -371,7 +383,7 @@ class MujocoWarpSim(BatchedSim):
 
     def physics_mapping(self) -> dict[str, str]:
         """How each :class:`PhysicsSpec` field reaches MuJoCo (see :meth:`BatchedSim.physics_mapping`;
-        the penalty conversion is :mod:`backends.mujoco_warp.penalty`)."""
+        the penalty conversion is :mod:`backends.mujoco_penalty`)."""
 
         def penalty(element: str, weight: str) -> str:
             conversion = f"(-ke (1 - d) A, -kd (1 - d) A), d = {IMPEDANCE} constant impedance"

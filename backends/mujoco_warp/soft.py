@@ -12,7 +12,7 @@ Model (:func:`build_soft_spec`, one per env, because each env's body has its own
   ``k_damp`` is a viscosity in Pa s: the ratio gives the same damping stress for the same strain
   rate in the linear regime);
 * ground contact: vertex spheres of the particle radius against the plane, the task's penalty
-  constants converted as for rigid bodies (:mod:`backends.mujoco_warp.penalty`: direct-form solref,
+  constants converted as for rigid bodies (:mod:`backends.mujoco_penalty`: direct-form solref,
   constant impedance, elliptic cone with ``impratio = kf / kd``), with the mean vertex mass standing
   in for each vertex's, since a flex has one solref.
 
@@ -30,7 +30,7 @@ import torch
 import warp as wp
 
 from backends.contract import BackendError
-from backends.mujoco_warp.penalty import constant_solimp, penalty_solref
+from backends.mujoco_penalty import constant_solimp, penalty_solref
 from backends.mujoco_warp.stepping import SubstepReplay, run_substeps
 from simcore import SoftBodySpec, activation_nodal_forces
 
@@ -77,7 +77,7 @@ def build_soft_spec(task, scale: float) -> mujoco.MjSpec:
     flex.damping = body.k_damp / young
     flex.friction = [phys.contact_mu, 0.005, 0.0001]
     flex.selfcollide = mujoco.mjtFlexSelf.mjFLEXSELF_NONE
-    # the penalty conversion of backends/mujoco_warp/penalty.py; a flex has one solref for all its
+    # the penalty conversion of backends/mujoco_penalty.py; a flex has one solref for all its
     # vertices, so A is the inverse of the mean vertex mass
     mean_mass = sum(masses) / len(masses)
     flex.solref = penalty_solref(phys.contact_ke, phys.contact_kd, 1.0 / mean_mass)

@@ -26,7 +26,7 @@ from __future__ import annotations
 import torch
 
 from backends._warp import option_flag, warp_device
-from backends.contract import BackendError, BatchedSim, inert_by_definition, option_number
+from backends.contract import MIB, BackendError, BatchedSim, TaskCost, inert_by_definition, option_number
 from backends.newton.articulation import FeatherstoneArticulation, SemiImplicitArticulation
 from backends.newton.bare import bare_tape_rollout
 from backends.newton.family import EngineFamily
@@ -73,6 +73,15 @@ class NewtonSim(BatchedSim):
         "graph_capture",
     )
     SOLVERS = tuple(ARTICULATIONS)
+    table_rank = 0  # the reference engine: first in every table
+    # Planning figures on a 2-core CPU: training from the runs in results/ (docs/cluster.md; the Go2's at
+    # 64 envs from its throughput against the Ant's), evaluation from the protocol's evaluations, memory
+    # from the growth of peak resident memory between two env counts (docs/performance.md).
+    costs = {
+        "ant": TaskCost(train_s=1.2e-3, eval_s=1.25e-4, bytes_per_env=(0.15 * MIB, 0.0, 0.30 * MIB)),
+        "go2": TaskCost(train_s=2.5e-3, eval_s=2.3e-4, bytes_per_env=(0.3 * MIB, 0.0, 0.45 * MIB)),
+        "soft_jumper": TaskCost(train_s=2e-2, eval_s=4e-3, bytes_per_env=(0.0, 0.0, 1.6 * MIB)),
+    }
 
     # -- construction ---------------------------------------------------------------------
     def _build(self) -> None:

@@ -120,6 +120,11 @@ def cmd_grad_paths(args) -> int:
 def cmd_parity(args) -> int:
     from harness.parity import parity, plot, table
 
+    if args.backends is None:  # the two first installed engines that drive the task
+        from harness.envs import engines_for
+
+        preflight(task=args.task)
+        args.backends = engines_for(args.task)[:2]
     if len(set(args.backends)) < 2:
         raise BadInput(f"parity compares two different backends, got {' '.join(args.backends)}")
     preflight(backends=args.backends, task=args.task, preset=args.preset, out=args.out, memory=(args.num_envs, 0))

@@ -219,7 +219,7 @@ FLAGS: dict[str, dict] = {
 VERB_DEFAULTS: dict[str, dict] = {
     "gradcheck": {"num_envs": 2},  # finite differences perturb every env at once: 2 envs say as much as 64
     "crosscheck": {"num_envs": 4},
-    "parity": {"num_envs": 64, "steps": 100, "max_steps": 300, "backends": ["newton", "mujoco_warp"]},
+    "parity": {"num_envs": 64, "steps": 100, "max_steps": 300},
     "contact-jacobians": {"num_envs": 8},
     "step-gain": {"num_envs": 64},
     "throughput": {"num_envs": 64, "horizon": 32, "windows": 5},

@@ -203,12 +203,13 @@ def cmd_render(args) -> int:
     from harness.render import compared_backends, render
     from harness.run_folder import read_config
 
-    trained_on = read_config(Path(args.run))["backend"]
+    config = read_config(Path(args.run))
+    trained_on = config["backend"]
     if args.compare and args.backend:
         raise BadInput("--compare shows both engines; drop --backend")
     if args.backend:
         validate_names(args.backend, None)
-    shown = compared_backends(trained_on) if args.compare else [args.backend or trained_on]
+    shown = compared_backends(trained_on, config["task"]) if args.compare else [args.backend or trained_on]
     render(args.run, shown, args.max_steps or 300, args.frames)
     return 0
 

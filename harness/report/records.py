@@ -15,6 +15,7 @@ import numpy as np
 import pandas as pd
 
 from algorithms.config import ALGORITHMS
+from harness.envs import engine_rank
 from harness.results import RunError, read_metrics
 from harness.run_folder import (
     CONFIG,
@@ -29,7 +30,6 @@ from harness.run_folder import (
 
 ALGO_ORDER = ALGORITHMS  # the order tables and plots list algorithms in
 VARIANT_SUFFIXES = ("-tdfixed", "-tdadpt")
-BACKEND_ORDER = ("newton", "mujoco_warp")
 SIM_TO_SIM_PREFIXES = (ON_ENGINE, *OLDER_ON_ENGINE)  # evaluations on a named engine, older names included
 
 
@@ -284,10 +284,14 @@ def load_check(path: Path, stream=None) -> CheckRecord | None:
 
 # -- grouping helpers -----------------------------------------------------------------------------
 def rank(name: str) -> tuple[int, str]:
-    """Sort key of a name: algorithms in ALGO_ORDER, backends in BACKEND_ORDER (the reference engine
-    first), anything else (tasks, unknown names) alphabetically after them."""
-    known = ALGO_ORDER + BACKEND_ORDER
-    return (known.index(name), "") if name in known else (len(known), name)
+    """Sort key of a name: algorithms in ALGO_ORDER, then engines by their adapters' ``table_rank`` (the
+    reference engine first), then anything else (tasks, unknown names) alphabetically."""
+    if name in ALGO_ORDER:
+        return (ALGO_ORDER.index(name), "")
+    engine = engine_rank(name)
+    if engine is not None:
+        return (len(ALGO_ORDER) + engine, name)
+    return (10**6, name)
 
 
 def group_runs(runs: Iterable[RunRecord], key: Callable[[RunRecord], tuple]) -> dict[tuple, list[RunRecord]]:

@@ -58,6 +58,7 @@ class PointMassSim(BatchedSim):
 
     name = "pointmass"
     contract_tasks = ("pointmass",)
+    known_options = ()  # it reads none: any option is refused, never ignored
     mass = 1.0
 
     def _build(self) -> None:
@@ -82,10 +83,6 @@ class PointMassSim(BatchedSim):
         }
         mapping.update(inert_by_definition(self.task))
         return mapping
-
-    @property
-    def layout(self) -> StateLayout:
-        return self.task.layout
 
     def state_from_generalized(self, joint_q, joint_qd, particle_q=None, particle_qd=None) -> SimState:
         joint_q = joint_q.to(self.device, torch.float32)

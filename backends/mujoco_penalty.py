@@ -1,4 +1,5 @@
-"""The task's penalty constants as MuJoCo soft constraints: one conversion, written down once.
+"""The task's penalty constants as MuJoCo soft constraints: one conversion, written down once, for every
+adapter of MuJoCo's model family (MuJoCo-Warp here; MuJoCo C or MJX as plug-ins): it imports MuJoCo alone.
 
 Newton (and the task's :class:`simcore.PhysicsSpec`) speaks of penalty springs in force space: a
 contact point that penetrates the ground by ``p`` pushes back with ``ke p + kd max(-v_n, 0)``,
