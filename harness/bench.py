@@ -61,7 +61,6 @@ from __future__ import annotations
 import copy
 import dataclasses
 import functools
-import hashlib
 import json
 import sys
 import tomllib
@@ -79,6 +78,9 @@ from harness.run_folder import (
     METRICS,
     ON_ENGINE,
     STEP_GAIN,
+    address_key,
+    logged_epochs,
+    training_complete,
 )
 
 PROFILES_DIR = Path(__file__).resolve().parent / "profiles"
@@ -89,8 +91,7 @@ GUESS_TRAIN_S, GUESS_EVAL_S = 5e-3, 1e-4
 _STARTUP_S = 12.0  # a job's process start, imports and model build (Warp kernels cached)
 
 
-def _hash(payload) -> str:
-    return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:12]
+_hash = address_key  # every job of the suite is addressed as a run folder is
 
 
 # -- the spec -------------------------------------------------------------------------------------
@@ -349,7 +350,7 @@ class Job:
         if not self.output.is_file():
             return False
         if self.kind == "train" and (
-            damage(self.run_dir) is not None or not _training_complete(self.run_dir, self.run.epochs)
+            damage(self.run_dir) is not None or not training_complete(self.run_dir, self.run.epochs)
         ):
             return False
         if self.output.suffix == ".jsonl":  # a run without evaluation: training complete is done
@@ -377,36 +378,6 @@ def damage(run_dir: Path) -> str | None:
     except RunError as exc:
         return str(exc).removesuffix("; start the run again in a new --out")
     return None
-
-
-def _training_complete(run_dir: Path, epochs: int) -> bool:
-    """True when the run's last checkpoint is at its planned epoch count (a torn run resumes instead),
-    or, for a run whose checkpoints were not kept (the store's files in git), when its metrics log every
-    planned epoch: finished, though analyses that need the final policy cannot run on it again."""
-    ckpt = run_dir / CHECKPOINT
-    if not ckpt.is_file():
-        return _logged_epochs(run_dir / METRICS) >= epochs
-    import torch
-
-    try:
-        return int(torch.load(ckpt, map_location="cpu", weights_only=False)["epoch"]) >= epochs
-    except Exception:  # unreadable: the job's resume will say why
-        return False
-
-
-def _logged_epochs(path: Path) -> int:
-    """How many epochs ``path`` (a run's metrics.jsonl) logs: its last epoch + 1, 0 if unreadable."""
-    try:
-        lines = path.read_text().splitlines()
-    except OSError:
-        return 0
-    last = -1
-    for line in lines:
-        try:
-            last = max(last, int(json.loads(line).get("epoch", -1)))
-        except (ValueError, TypeError, AttributeError):
-            continue  # a torn last line
-    return last + 1
 
 
 def _distinct_labels(checks: list[Job], args: list[list[str]]) -> None:
@@ -494,7 +465,7 @@ def train_job(run: RunSpec, run_dir: Path) -> Job:
     # initial and final policy, every seed, at most one episode each
     eval_envs = run.eval_num_envs or 2 * run.num_envs
     eval_steps = 2 * run.eval_seeds * eval_envs * _episode(run.task, run.eval_max_steps)
-    left = max(run.epochs - _logged_epochs(run_dir / METRICS), 0) / max(run.epochs, 1)
+    left = max(run.epochs - logged_epochs(run_dir / METRICS), 0) / max(run.epochs, 1)
     options = dict(run.backend_options)
     estimate = _STARTUP_S + left * run.env_steps * _seconds_per_env_step(run.backend, run.task, options)
     estimate += eval_steps * _seconds_per_env_step(run.backend, run.task, options, train=False)

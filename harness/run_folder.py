@@ -183,6 +183,44 @@ def check_here(config: dict, backend: str | None = None) -> None:
         raise RunError(f"{CONFIG} of this run: {problem}")
 
 
+def training_complete(run_dir: Path, epochs: int) -> bool:
+    """True when the run's last checkpoint is at its planned epoch count (a torn run resumes instead),
+    or, for a run whose checkpoints were not kept (the store's files in git), when its metrics log every
+    planned epoch: finished, though analyses that need the final policy cannot run on it again."""
+    ckpt = run_dir / CHECKPOINT
+    if not ckpt.is_file():
+        return logged_epochs(run_dir / METRICS) >= epochs
+    import torch
+
+    try:
+        return int(torch.load(ckpt, map_location="cpu", weights_only=False)["epoch"]) >= epochs
+    except Exception:  # unreadable: the job's resume will say why
+        return False
+
+
+def logged_epochs(path: Path) -> int:
+    """How many epochs ``path`` (a run's metrics.jsonl) logs: its last epoch + 1, 0 if unreadable."""
+    try:
+        lines = path.read_text().splitlines()
+    except OSError:
+        return 0
+    last = -1
+    for line in lines:
+        try:
+            last = max(last, int(json.loads(line).get("epoch", -1)))
+        except (ValueError, TypeError, AttributeError):
+            continue  # a torn last line
+    return last + 1
+
+
+def address_key(payload) -> str:
+    """The 12 hex digits a run folder's name ends in: a hash of its address (:func:`address`), and the
+    suite's key of any planned job."""
+    import hashlib
+
+    return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:12]
+
+
 def address(config: dict) -> dict:
     """What a run folder is addressed by, read from its config (:func:`read_config`): the fields that make
     the result (task, backend, seed, device, epochs, hyperparameters, physics, engine options and

@@ -21,8 +21,6 @@ from pathlib import Path
 
 from harness.bench import (
     Job,
-    _hash,
-    _training_complete,
     check_spec,
     damage,
     load_spec,
@@ -33,7 +31,7 @@ from harness.check_kinds import CHECK_KINDS
 from harness.folder_claims import Claim
 from harness.progress import ProgressLine, duration
 from harness.results import RunError, RunStopped, path_problem
-from harness.run_folder import CONFIG, EVALUATION, JOB
+from harness.run_folder import CONFIG, JOB
 
 
 class SuiteStopped(RunStopped):
@@ -240,9 +238,17 @@ def bench_run(run_dir: str | Path, stream=None) -> Path:
     path = run_dir / JOB
     if not path.is_file():
         raise RunError(f"{run_dir} has no job.json: bench-run runs directories planned by `bench`")
-    job = json.loads(path.read_text())
+    from harness.train import job_problem, train_planned
+
+    try:
+        job = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise RunError(f"{path} is unreadable ({exc}); plan the run again with bench") from None
+    problem = job_problem(job)
+    if problem:  # before the claim: nothing is written for a job that cannot run
+        raise RunError(f"{path}: {problem}; plan the run again with bench")
     with _signals_unwind(run_dir), Claim(run_dir, stream=stream):  # one worker writes a run; the others wait
-        _train_and_evaluate(run_dir, job, stream)
+        train_planned(run_dir, job, stream)
     return run_dir
 
 
@@ -283,51 +289,6 @@ def _signals_unwind(run_dir: Path):
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler)
-
-
-def _evaluated(run_dir: Path, ev: dict) -> bool:
-    try:
-        payload = json.loads((run_dir / EVALUATION).read_text())
-    except (OSError, ValueError):
-        return False
-    expect = {"seeds": ev["seeds"], "max_steps": ev["max_steps"]} | (
-        {"num_envs": ev["num_envs"]} if ev["num_envs"] else {}
-    )
-    return all(payload.get(k) == v for k, v in expect.items())
-
-
-def _train_and_evaluate(run_dir: Path, job: dict, stream) -> None:
-    from algorithms.config import AlgoConfig
-    from harness.run_folder import address, read_config
-    from harness.train import evaluate, resume, train
-
-    ev = job["eval"]
-    if _training_complete(run_dir, job["epochs"]) and (not ev["seeds"] or _evaluated(run_dir, ev)):
-        print(f"{run_dir.name}: already finished (by another worker)", file=stream, flush=True)
-        return
-    if (run_dir / CONFIG).is_file():
-        config = read_config(run_dir)
-        if _hash(address(config)) != job["key"]:
-            raise RunError(f"{run_dir}: config.json does not match the planned run (job.json): move the folder away")
-        if not _training_complete(run_dir, job["epochs"]):
-            resume(run_dir, command="python -m harness bench-run " + str(run_dir), stream=stream)
-    else:
-        cfg = AlgoConfig.from_dict(job["algo"])
-        train(
-            run_dir,
-            job["task"],
-            job["backend"],
-            cfg,
-            job["epochs"],
-            seed=job["seed"],
-            device=job["device"],
-            command="python -m harness bench-run " + str(run_dir),
-            stream=stream,
-            preset=job.get("preset"),  # None: the task's default
-            backend_options=job.get("backend_options"),
-        )
-    if ev["seeds"]:
-        evaluate(run_dir, seeds=ev["seeds"], num_envs=ev["num_envs"], max_steps=ev["max_steps"], stream=stream)
 
 
 def run_suite(

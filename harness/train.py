@@ -55,14 +55,19 @@ from harness.results import (
 from harness.run_folder import (
     CHECKPOINT,
     CONFIG,
+    EVALUATION,
     INIT_CHECKPOINT,
+    JOB,
     METRICS,
+    address,
+    address_key,
     check_here,
     evaluation_file,
     open_run,
     read_checkpoint,
     read_config,
     run_identity,
+    training_complete,
     upgrade_notes,
 )
 from harness.tensorboard import FOLDER as TENSORBOARD_FOLDER
@@ -538,3 +543,63 @@ def evaluate(
     written = write_json(Path(out) if out else run_dir / evaluation_file(backend, trained_on), payload)
     print(f"wrote {written}", file=stream, flush=True)
     return payload
+
+
+def job_problem(job) -> str | None:
+    """What a job.json lacks to be run, as a phrase, or None."""
+    if not isinstance(job, dict):
+        return "not a JSON object"
+    missing = [k for k in ("task", "backend", "seed", "device", "epochs", "algo", "eval", "key") if k not in job]
+    if missing:
+        return f"it has no {', '.join(missing)}"
+    if not isinstance(job["eval"], dict) or any(k not in job["eval"] for k in ("seeds", "num_envs", "max_steps")):
+        return "its eval is not a table of seeds, num_envs and max_steps"
+    return None
+
+
+def _evaluated(run_dir: Path, ev: dict) -> bool:
+    """Whether eval.json holds the evaluation ``ev`` plans."""
+    try:
+        payload = json.loads((run_dir / EVALUATION).read_text())
+    except (OSError, ValueError):
+        return False
+    expect = {"seeds": ev["seeds"], "max_steps": ev["max_steps"]} | (
+        {"num_envs": ev["num_envs"]} if ev["num_envs"] else {}
+    )
+    return all(payload.get(k) == v for k, v in expect.items())
+
+
+def train_planned(run_dir: Path, job: dict, stream) -> None:
+    """The per-run part of ``bench-run``: train the run the suite planned (``job``, its job.json), or
+    resume it, unless another worker finished it, then evaluate it as planned. A config.json that is
+    not the planned run's is refused rather than continued."""
+    problem = job_problem(job)
+    if problem:
+        raise RunError(f"{run_dir / JOB}: {problem}; plan the run again with bench")
+    ev = job["eval"]
+    if training_complete(run_dir, job["epochs"]) and (not ev["seeds"] or _evaluated(run_dir, ev)):
+        print(f"{run_dir.name}: already finished (by another worker)", file=stream, flush=True)
+        return
+    if (run_dir / CONFIG).is_file():
+        config = read_config(run_dir)
+        if address_key(address(config)) != job["key"]:
+            raise RunError(f"{run_dir}: config.json does not match the planned run (job.json): move the folder away")
+        if not training_complete(run_dir, job["epochs"]):
+            resume(run_dir, command="python -m harness bench-run " + str(run_dir), stream=stream)
+    else:
+        cfg = AlgoConfig.from_dict(job["algo"])
+        train(
+            run_dir,
+            job["task"],
+            job["backend"],
+            cfg,
+            job["epochs"],
+            seed=job["seed"],
+            device=job["device"],
+            command="python -m harness bench-run " + str(run_dir),
+            stream=stream,
+            preset=job.get("preset"),  # None: the task's default
+            backend_options=job.get("backend_options"),
+        )
+    if ev["seeds"]:
+        evaluate(run_dir, seeds=ev["seeds"], num_envs=ev["num_envs"], max_steps=ev["max_steps"], stream=stream)

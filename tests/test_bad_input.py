@@ -336,6 +336,7 @@ if "pointmass" in backends.available():  # a plug-in named where it cannot serve
         ("parity of a task without a floating base", ["parity", "--task", "pointmass"], None, "floating-base robots"),
     ]
 CLI_CASES += [  # an output in the way, found before the work rather than after it
+    ("bench-run on a job file missing keys", ["bench-run", "RUN"], "partial_job", "it has no seed, device, epochs"),
     (
         "render where its video's name is a folder",
         ["render", "--run", "RUN", "--max-steps", "2"],
@@ -439,6 +440,8 @@ def _damage(run: Path, how: str | dict | None, monkeypatch) -> None:
         config = json.loads((run / "config.json").read_text())
         config["epochs"] = 2
         (run / "config.json").write_text(json.dumps(config))
+    elif how == "partial_job":
+        (run / "job.json").write_text('{"task": "ant", "backend": "newton"}')
     elif how == "video_folder":
         (run / "render_newton.mp4").mkdir()
     elif how == "no_cuda":
