@@ -334,7 +334,17 @@ if "pointmass" in backends.available():  # a plug-in named where it cannot serve
             "pointmass cannot run ant",
         ),
         ("parity of a task without a floating base", ["parity", "--task", "pointmass"], None, "floating-base robots"),
+        ("fd-schemes on a task MuJoCo-Warp cannot build", ["fd-schemes", "--task", "pointmass"], None, "cannot load"),
     ]
+CLI_CASES += [  # engine settings and options that cannot serve, in one line
+    ("render with an unknown MUJOCO_GL", ["render", "--run", "RUN", "--max-steps", "2"], "bad_gl", "MUJOCO_GL='bogus'"),
+    (
+        "contact-jacobians with an option the adapter lacks",
+        ["contact-jacobians", *ANT, "--backend-option", "bogus=1", "--states", "2", "--policy-epochs", "0"],
+        None,
+        "has no option 'bogus'",
+    ),
+]
 CLI_CASES += [  # an output in the way, found before the work rather than after it
     ("bench-run on a job file missing keys", ["bench-run", "RUN"], "partial_job", "it has no seed, device, epochs"),
     (
@@ -442,6 +452,8 @@ def _damage(run: Path, how: str | dict | None, monkeypatch) -> None:
         (run / "config.json").write_text(json.dumps(config))
     elif how == "partial_job":
         (run / "job.json").write_text('{"task": "ant", "backend": "newton"}')
+    elif how == "bad_gl":
+        monkeypatch.setenv("MUJOCO_GL", "bogus")
     elif how == "video_folder":
         (run / "render_newton.mp4").mkdir()
     elif how == "no_cuda":

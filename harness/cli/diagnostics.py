@@ -167,6 +167,7 @@ def _write_result_and_table(out: str, kind: str, result: dict, text: str):
 
 
 def cmd_contact_jacobians(args) -> int:
+    from backends.contract import BackendError
     from harness.contact_jacobians import contact_jacobians, table
 
     preflight(
@@ -191,7 +192,7 @@ def cmd_contact_jacobians(args) -> int:
             options=dict(args.backend_option or []),
             progress=lambda line: print(line, flush=True),
         )
-    except ValueError as exc:
+    except (ValueError, BackendError) as exc:  # a task or an option the adapter cannot take
         raise BadInput(str(exc)) from None
     text = table(result)
     print(text)

@@ -136,16 +136,21 @@ def cmd_fd_schemes(args) -> int:
     from harness.fd_schemes import fd_schemes, markdown
 
     print(f"fd-schemes mujoco_warp/{args.task}: accuracy on {args.num_envs} envs, cost at {args.timing_envs} envs")
-    report = fd_schemes(
-        args.task,
-        num_envs=args.num_envs,
-        timing_envs=args.timing_envs,
-        windows=args.windows,
-        seed=args.seed,
-        settle=args.settle,
-        contact_states=args.contact_states,
-        schemes=tuple(args.schemes) if args.schemes else None,
-    )
+    from backends.contract import BackendError
+
+    try:
+        report = fd_schemes(
+            args.task,
+            num_envs=args.num_envs,
+            timing_envs=args.timing_envs,
+            windows=args.windows,
+            seed=args.seed,
+            settle=args.settle,
+            contact_states=args.contact_states,
+            schemes=tuple(args.schemes) if args.schemes else None,
+        )
+    except BackendError as exc:  # a task MuJoCo-Warp cannot build
+        raise BadInput(f"fd-schemes on {args.task}: {exc}") from None
     if prefix:  # the JSON last: a suite counts the check done when it exists
         print(f"wrote {atomic_write_text(prefix + '.md', markdown(report, harness_command()))}")
         print(f"wrote {write_check(prefix + '.json', 'fd-schemes', report)}")

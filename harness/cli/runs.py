@@ -195,11 +195,18 @@ def cmd_bench_run(args) -> int:
     return 0
 
 
+#: the MUJOCO_GL values MuJoCo's renderer takes on Linux (its gl_context); headless: egl or osmesa
+RENDER_GL = ("egl", "osmesa", "glfw", "glx", "enable", "enabled", "on", "true", "1", "")
+
+
 def cmd_render(args) -> int:
     import os
     from pathlib import Path
 
     os.environ.setdefault("MUJOCO_GL", "egl")  # before anything imports MuJoCo: headless rendering
+    if os.environ["MUJOCO_GL"].lower().strip() not in RENDER_GL:
+        shown = ", ".join(g for g in RENDER_GL if g)
+        raise BadInput(f"MUJOCO_GL={os.environ['MUJOCO_GL']!r}: render draws with one of {shown}")
     from harness.render import compared_backends, render
     from harness.run_folder import read_config
 
