@@ -903,9 +903,13 @@ def test_readmes_result_tables_are_the_ones_the_results_make(tmp_path):
     copy = tmp_path / "repo"
     for folder in ("results/bench/protocol", "results/bench/standard"):
         (copy / folder).mkdir(parents=True)
-        for name in ("returns.csv", "returns_claims.csv"):
+        for name in ("returns.csv", "returns_claims.csv", "returns_locomotion.csv"):
             if (root / folder / name).is_file():
                 shutil.copy(root / folder / name, copy / folder / name)
+    for evaluation in (root / "results/bench/protocol/runs").glob("go2_*/eval.json"):
+        target = copy / evaluation.relative_to(root)
+        target.parent.mkdir(parents=True)
+        shutil.copy(evaluation, target)
     shutil.copy(root / "README.md", copy / "README.md")
     claims = copy / "results/bench/protocol/returns_claims.csv"
     text = claims.read_text()
@@ -917,4 +921,4 @@ def test_readmes_result_tables_are_the_ones_the_results_make(tmp_path):
     assert update_readme(copy / "README.md", copy) == ["protocol-ant"]
     assert "+12% [" in (copy / "README.md").read_text()
     assert update_readme(copy / "README.md", copy, check=True) == []
-    assert set(BLOCKS) == {"protocol-ant", "standard-returns"}
+    assert set(BLOCKS) == {"protocol-ant", "protocol-go2", "standard-returns"}

@@ -9,6 +9,7 @@ repository's README, so a result re-made without its README block fails the test
 from __future__ import annotations
 
 import csv
+import json
 import math
 import re
 from collections.abc import Callable
@@ -84,6 +85,51 @@ def protocol_ant(root: Path) -> str:
     return "\n".join(lines)
 
 
+def protocol_go2(root: Path) -> str:
+    """The Go2 at the protocol's quarter budget: final return (IQM [95% bootstrap CI]) and forward
+    velocity (mean [95% t CI]) per algorithm, with every seed's final (and untrained) values from its
+    run's eval.json."""
+    setting = {"task": "go2", "backend": "newton", "num_envs": "64", "horizon": "32", "epochs": "500"}
+    pick = [(a, r) for a, r in _setting_rows(root / PROTOCOL / "returns.csv", setting)]
+    velocity = dict(_setting_rows(root / PROTOCOL / "returns_locomotion.csv", setting))
+    lines = [
+        "| algorithm (seeds) | final return IQM [95% CI] | per seed (untrained) "
+        "| mean forward velocity m/s [95% t CI] | per seed |",
+        "|---|---|---|---|---|",
+    ]
+    for algo, row in pick:
+        evaluations = _seed_evaluations(root / PROTOCOL / "runs", "go2_newton", algo, "h32")
+        finals = ", ".join(f"{e['final']['mean_return']:.0f}" for e in evaluations)
+        untrained = ", ".join(f"{e['initial']['mean_return']:.0f}" for e in evaluations)
+        speeds = ", ".join(f"{e['final']['mean_forward_velocity']:.2f}".replace("-0.00", "0.00") for e in evaluations)
+        v = velocity[algo]
+        cells = [
+            f"{ALGORITHM_NAMES[algo]} ({row['seeds']})",
+            f"{float(row['iqm_final']):.0f} [{float(row['iqm_ci_low']):.0f}, {float(row['iqm_ci_high']):.0f}]",
+            f"{finals} ({untrained})",
+            f"{float(v['final_velocity']):.2f} [{float(v['final_velocity_ci_low']):.2f}, "
+            f"{float(v['final_velocity_ci_high']):.2f}]",
+            speeds,
+        ]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _setting_rows(path: Path, setting: dict) -> list[tuple[str, dict]]:
+    """(algorithm, row) of a table's rows at one setting, in the algorithms' order."""
+    rows = [r for r in _rows(path) if all(r[k] == v for k, v in setting.items())]
+    return [(r["algo"], r) for r in sorted(rows, key=lambda r: list(ALGORITHM_NAMES).index(r["algo"]))]
+
+
+def _seed_evaluations(runs: Path, prefix: str, algo: str, horizon: str) -> list[dict]:
+    """The eval.json of every seed of one algorithm's runs, by seed."""
+    found = {}
+    for path in runs.glob(f"{prefix}_{algo}_{horizon}_s*_*/eval.json"):
+        seed = int(path.parent.name.removeprefix(f"{prefix}_{algo}_{horizon}_s").split("_")[0])
+        found[seed] = json.loads(path.read_text())
+    return [found[s] for s in sorted(found)]
+
+
 STANDARD = Path("results/bench/standard")
 TASK_NAMES = {"ant": "Ant", "go2": "Go2", "soft_jumper": "SoftJumper"}
 
@@ -116,7 +162,11 @@ def standard_returns(root: Path) -> str:
 
 
 #: block name -> the function that makes it from the repository root
-BLOCKS: dict[str, Callable[[Path], str]] = {"protocol-ant": protocol_ant, "standard-returns": standard_returns}
+BLOCKS: dict[str, Callable[[Path], str]] = {
+    "protocol-ant": protocol_ant,
+    "protocol-go2": protocol_go2,
+    "standard-returns": standard_returns,
+}
 
 
 def _pattern(name: str) -> re.Pattern:
