@@ -176,13 +176,23 @@ def test_the_key_changes_no_runs_address(tmp_path):
 
 
 def test_the_protocol_keeps_every_committed_run_at_its_address(tmp_path):
-    """The protocol profile plans (on an empty store, where its sequential blocks want 5 seeds) every run
-    folder committed in results/bench/protocol/runs under its own name."""
+    """The protocol profile plans every run folder committed in results/bench/protocol/runs under its own
+    name: on an empty store (where its sequential blocks want their first 5 seeds) the first group's,
+    and on the committed store (where the design reads the finished seeds and may add more) every one."""
     committed = Path(__file__).resolve().parents[1] / "results" / "bench" / "protocol" / "runs"
     if not committed.is_dir():
         pytest.skip("no committed protocol store")
     data, _ = load_spec(profile="protocol")
-    planned = {j.run_dir.name for j in plan(data, tmp_path, stream=io.StringIO()) if j.kind == "train"}
+    fresh = {j.run_dir.name for j in plan(data, tmp_path, stream=io.StringIO()) if j.kind == "train"}
+    first_group = {
+        d.name
+        for d in committed.iterdir()
+        if (d / "job.json").is_file() and int(d.name.split("_s")[-1].split("_")[0]) < 5
+    }
+    assert first_group and first_group <= fresh, sorted(first_group - fresh)
+    before = sorted(p.relative_to(committed) for p in committed.rglob("*"))
+    planned = {j.run_dir.name for j in plan(data, committed.parent, stream=io.StringIO()) if j.kind == "train"}
+    assert sorted(p.relative_to(committed) for p in committed.rglob("*")) == before  # planning writes nothing
     folders = {d.name for d in committed.iterdir() if (d / "job.json").is_file()}
     assert folders and folders <= planned, sorted(folders - planned)
 
