@@ -375,7 +375,7 @@ def _move_damaged_runs(jobs: list[Job], stream) -> None:
 def _damaged_outputs(jobs: list[Job]) -> list[str]:
     """The finished-looking outputs a report cannot read: run folders with a damaged config.json and
     check files that are not whole JSON, one line each."""
-    lines = [damage(j.run_dir) for j in jobs if j.kind == "train" and damage(j.run_dir) is not None]
+    lines = [problem for j in jobs if j.kind == "train" and (problem := damage(j.run_dir)) is not None]
     for job in jobs:
         if job.kind in CHECK_KINDS and job.output.exists():
             try:
