@@ -30,9 +30,9 @@ import tempfile
 from pathlib import Path
 
 from algorithms.config import AlgoConfig
-from harness import bench, runner
 from harness.results import provenance, write_json
-from harness.train import train
+from harness.run.train import train
+from harness.suite import bench, runner
 
 COMPARED = ("actor_loss", "actor_grad_norm", "actor_grad_var", "critic_loss")
 

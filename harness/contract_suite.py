@@ -33,7 +33,7 @@ except ImportError as exc:  # pragma: no cover - a runtime install without the t
 
 import backends
 from backends import BackendError, InvalidActionError, NonFiniteStateError
-from harness.gradcheck import DEFAULT_TOLERANCE, gradcheck
+from harness.checks.gradcheck import DEFAULT_TOLERANCE, gradcheck
 from simcore import ControlKind, quat_from_angle_axis, quat_mul
 from tasks import make_task
 

@@ -21,7 +21,7 @@ def one_epoch_ant_run(tmp_path_factory) -> Path:
     """A finished one-epoch Newton Ant run (4 envs, h 4); tests that change a run copy it first."""
     pytest.importorskip("newton")
     from algorithms.config import preset
-    from harness.train import train
+    from harness.run.train import train
 
     run = tmp_path_factory.mktemp("one_epoch_ant") / "run"
     cfg = preset("shac").replace(num_envs=4, horizon=4, critic_iterations=1)

@@ -16,7 +16,7 @@ from algorithms.grad_variance import gradient_statistics, gradient_variance  # n
 from algorithms.returns import actor_loss_from_returns, critic_targets, segment_starts  # noqa: E402
 from backends import make  # noqa: E402
 from harness.cli import main as cli  # noqa: E402
-from harness.train import WALL_TIME_FIELDS, RunError, resume, save_checkpoint, train  # noqa: E402
+from harness.run.train import WALL_TIME_FIELDS, RunError, resume, save_checkpoint, train  # noqa: E402
 from tasks import make_task  # noqa: E402
 from tasks.env import TaskEnv  # noqa: E402
 

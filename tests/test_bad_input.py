@@ -269,7 +269,7 @@ CLI_CASES = [
 
 
 # run folders whose config.json and checkpoints disagree with each other or with this machine: every verb
-# that loads a policy refuses them the same way (harness/run_folder.py), before it writes anything
+# that loads a policy refuses them the same way (harness/run/folder.py), before it writes anything
 RUN_VERBS = {
     "eval": ["eval", "--run", "RUN", "--eval-seeds", "1"],
     "resume": ["train", "--resume", "RUN", "--epochs", "2"],
@@ -477,7 +477,7 @@ def test_bad_cli_input(case, args, damage, needle, template, tmp_path, monkeypat
 
 
 def test_checkpoints_record_their_run_and_a_matching_folder_opens(template):
-    from harness.run_folder import open_run
+    from harness.run.folder import open_run
 
     rng = torch.get_rng_state()
     config = open_run(template, ("checkpoint.pt", "checkpoint_init.pt"))

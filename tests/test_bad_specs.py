@@ -1,5 +1,5 @@
 """A corpus of malformed bench specs: every one is refused before any job starts, with one line naming
-the key and what is valid (harness/spec_schema.py), through the API (``RunError``) and, for a sample,
+the key and what is valid (harness/suite/schema.py), through the API (``RunError``) and, for a sample,
 through the command line (exit 2, nothing written)."""
 
 from __future__ import annotations
@@ -9,9 +9,9 @@ import math
 
 import pytest
 
-from harness.bench import load_spec, plan
 from harness.cli import main
 from harness.results import RunError
+from harness.suite.bench import load_spec, plan
 
 VALID = {
     "suite": {"name": "x", "jobs": 1},

@@ -17,9 +17,9 @@ from pathlib import Path
 import pytest
 
 import backends
-from harness.bench import RunSpec, load_spec, plan, train_job
 from harness.results import RunError
-from harness.runner import run_suite
+from harness.suite.bench import RunSpec, load_spec, plan, train_job
+from harness.suite.runner import run_suite
 
 POINTMASS = pytest.mark.skipif("pointmass" not in backends.available(), reason="the point-mass plug-in is absent")
 
@@ -103,7 +103,7 @@ def test_a_run_is_addressed_by_its_adapters_gradient_settings(monkeypatch):
     settings, so a changed default plans new runs; exact gradients add nothing (Newton's addresses stay)."""
     pytest.importorskip("mujoco_warp")
     from backends.mujoco_warp import adapter
-    from harness import bench
+    from harness.suite import bench
 
     spec = dict(task="ant", algo="shac", seed=0, epochs=10, num_envs=8, horizon=16, device="cpu")
     newton = RunSpec(backend="newton", **spec)
@@ -127,7 +127,7 @@ def test_a_check_is_addressed_by_the_gradient_settings_of_the_options_it_names(t
     them (not the default's), so changing the forward step re-plans only the forward check."""
     pytest.importorskip("mujoco_warp")
     from backends.mujoco_warp import adapter
-    from harness import bench
+    from harness.suite import bench
 
     check = "[[check]]\nkind='contact-jacobians'\nbackends=['mujoco_warp']\ntasks=['ant']\nargs=[{}]\n"
     named = ("", "'--backend-option', 'fd_scheme=forward'", "'--backend-option', 'fd_scheme=one_sided'")
@@ -290,7 +290,7 @@ def test_finished_runs_are_reused_and_interrupted_ones_resumed(tmp_path):
 def _finished_at(run: RunSpec, store: Path, epochs: int | None = None) -> Path:
     """A run folder as a suite leaves it once ``run`` trained ``epochs`` (default: all) and was evaluated,
     its checkpoints not kept (as in a store committed to git)."""
-    from harness.runner import _write_job_file
+    from harness.suite.runner import _write_job_file
 
     job = train_job(run, store / "runs" / run.dirname)
     _write_job_file(job)
@@ -460,7 +460,7 @@ def test_a_signal_during_the_evaluation_releases_the_runs_claim(tmp_path, signum
     no evaluation file and no half-written file."""
     import signal
 
-    from harness.runner import _write_job_file
+    from harness.suite.runner import _write_job_file
 
     spec = POINTMASS_SPEC.replace("seeds = [0, 1]", "seeds = [0]").replace("horizons = [4, 8]", "horizons = [4]")
     spec = spec.replace('algos = ["shac", "shac-tdadpt"]', 'algos = ["shac"]').replace("seeds = 1", "seeds = 1000")

@@ -70,7 +70,7 @@ def make_run(
     epochs: int = EPOCHS,
     extra: dict[str, list] | None = None,
 ) -> Path:
-    """A run directory as harness/train.py leaves it: config.json, metrics.jsonl and (unless final is None)
+    """A run directory as harness/run/train.py leaves it: config.json, metrics.jsonl and (unless final is None)
     eval.json. ``grad_var``: actor_grad_var of each epoch (NaN allowed, as the log has it)."""
     setting = "" if (num_envs, epochs) == (4, EPOCHS) else f"_n{num_envs}_e{epochs}"
     run = root / f"{task}_{backend}_{algo}_h{horizon}_s{seed}{setting}"
@@ -778,7 +778,7 @@ def test_every_plot_exists(suite):
     assert {f"{n}.png" for n in expected | {"throughput"}} <= names
     for path in pngs:
         assert path.is_file() and path.stat().st_size > 1000, path
-    # the landscape figure comes from harness.landscape when it imports; else the skip is said
+    # the landscape figure comes from harness.checks.landscape when it imports; else the skip is said
     assert "landscape_ant_newton_shac-tdadpt_h16_s0.png" in names or "skipped plot landscape_" in suite["log"]
     # the suite's horizons have different budgets: no return-vs-h panel (drawn in its own test below)
     assert "skipped plot returns_vs_h.png: no algorithm has evaluated runs at two horizons" in suite["log"]

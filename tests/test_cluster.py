@@ -23,8 +23,8 @@ from pathlib import Path
 import pytest
 
 import backends
-from harness.folder_claims import LOST_CLAIM_EXIT, PREFIX, Claim, generations, holder
-from harness.train import WALL_TIME_FIELDS
+from harness.run.folder_claims import LOST_CLAIM_EXIT, PREFIX, Claim, generations, holder
+from harness.run.train import WALL_TIME_FIELDS
 
 POINTMASS = pytest.mark.skipif("pointmass" not in backends.available(), reason="the point-mass plug-in is absent")
 
@@ -37,7 +37,7 @@ def _hold(run_dir: Path, seconds: float, heartbeat: float = 5.0) -> subprocess.P
     """A process that claims ``run_dir``, says so, holds it ``seconds``, and releases it."""
     code = (
         "import sys, time\n"
-        "from harness.folder_claims import Claim\n"
+        "from harness.run.folder_claims import Claim\n"
         f"c = Claim({str(run_dir)!r}, heartbeat_s={heartbeat}).acquire()\n"
         "print('held', flush=True)\n"
         f"time.sleep({seconds})\n"
@@ -142,7 +142,7 @@ def test_racing_workers_never_hold_a_run_together(tmp_path):
     journal = tmp_path / "journal"
     code = (
         "import os, sys, time\n"
-        "from harness.folder_claims import Claim\n"
+        "from harness.run.folder_claims import Claim\n"
         f"with Claim({str(run)!r}, poll_s=0.01):\n"
         f"    with open({str(journal)!r}, 'a') as fh: fh.write(f'enter {{os.getpid()}}\\n'); fh.flush()\n"
         "    time.sleep(0.05)\n"
@@ -440,8 +440,8 @@ def test_an_address_where_no_ray_head_listens_is_refused_in_one_line_within_the_
     answer, needle, tmp_path, monkeypatch, capsys
 ):
     pytest.importorskip("ray", reason="the [ray] extra is not installed (tox -e py installs it)")
-    from harness import launchers
     from harness.cli import main
+    from harness.suite import launchers
 
     monkeypatch.setattr(launchers, "CONNECT_TIMEOUT_S", 1.0)
     server, held, address = _listener(answer)  # ``held``: the accepted connection, open until the test ends

@@ -9,8 +9,8 @@ import pytest
 pytest.importorskip("newton")
 pytest.importorskip("mujoco_warp")
 
+from harness.checks.contact_jacobians import compare, contact_jacobians, gains  # noqa: E402
 from harness.cli import main as cli  # noqa: E402
-from harness.contact_jacobians import compare, contact_jacobians, gains  # noqa: E402
 
 
 @pytest.mark.parametrize("backend", ["mujoco_warp", "newton"])

@@ -6,8 +6,8 @@ import pytest
 
 pytest.importorskip("newton")
 
-from harness.crosscheck import crosscheck  # noqa: E402
-from harness.gradcheck import DEFAULT_TOLERANCE  # noqa: E402
+from harness.checks.crosscheck import crosscheck  # noqa: E402
+from harness.checks.gradcheck import DEFAULT_TOLERANCE  # noqa: E402
 
 
 def test_a_backend_agrees_with_itself_and_reports_its_own_check():

@@ -13,7 +13,7 @@ import torch
 
 pytest.importorskip("newton")
 
-from harness.train import evaluate  # noqa: E402
+from harness.run.train import evaluate  # noqa: E402
 from tasks.ant import Ant  # noqa: E402
 
 

@@ -190,7 +190,7 @@ def test_newton_action_gradients_in_stance_match_finite_differences(go2):
     state gradient in stance crosses the contact-damping kink (damping acts only while a foot moves
     into the ground), where central differences measure no derivative (docs/tasks.md, "Go2
     gradients")."""
-    from harness.gradcheck import DEFAULT_TOLERANCE, gradcheck
+    from harness.checks.gradcheck import DEFAULT_TOLERANCE, gradcheck
 
     sim = make("newton", go2, num_envs=2, seed=1, max_graph_steps=8)
     result = gradcheck(sim, steps=8, seed=0, action_scale=0.1, settle_steps=90, value_probe=False, max_coordinates=0)

@@ -7,8 +7,8 @@ import pytest
 
 pytest.importorskip("newton")
 
+from harness.checks.grad_paths import grad_paths  # noqa: E402
 from harness.cli import main as cli  # noqa: E402
-from harness.grad_paths import grad_paths  # noqa: E402
 
 
 def _run(horizon: int) -> dict:

@@ -17,7 +17,7 @@ import pytest
 import torch
 
 import backends
-from harness.train import WALL_TIME_FIELDS
+from harness.run.train import WALL_TIME_FIELDS
 
 pytestmark = pytest.mark.skipif("pointmass" not in backends.available(), reason="the point-mass plug-in is absent")
 

@@ -1,4 +1,4 @@
-"""The loss landscape of Fig. 3 (harness/landscape.py): the roughness statistic, filter-normalised directions,
+"""The loss landscape of Fig. 3 (harness/checks/landscape.py): the roughness statistic, filter-normalised directions,
 and an end-to-end landscape of a tiny trained Newton Ant run whose centre must be the trained policy's loss."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import torch
 from algorithms.actor_critic import FirstOrderActorCritic
 from algorithms.config import preset
 from algorithms.returns import actor_loss_from_returns, h_step_returns, segment_starts
-from harness.landscape import (
+from harness.checks.landscape import (
     compute_landscape,
     filter_normalised_directions,
     roughness,
@@ -87,7 +87,7 @@ def test_directions_are_filter_normalised(name):
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     pytest.importorskip("newton")
-    from harness.train import train
+    from harness.run.train import train
 
     cfg = preset("shac-tdadpt").replace(num_envs=2, horizon=4, critic_iterations=1, grad_var_groups=2)
     return train(tmp_path_factory.mktemp("landscape") / "run", "ant", "newton", cfg, epochs=1, stream=io.StringIO())
@@ -97,8 +97,8 @@ def _unperturbed_losses(run, noise_seed: int, grad: bool) -> tuple[float, float]
     """The trained policy's (h-step, TD-lambda) actor loss on the landscape's window, computed the
     algorithm's own way: its rollout and its ``actor_loss`` (TD-lambda for TDAdpt)."""
     from harness.envs import make_env
-    from harness.run_folder import read_config
-    from harness.train import load_checkpoint
+    from harness.run.folder import read_config
+    from harness.run.train import load_checkpoint
 
     cfg = read_config(run)["algo_config"]
     env = make_env("ant", "newton", 2, "cpu", 0, cfg.horizon)

@@ -19,7 +19,7 @@ from backends import BackendError, ControlKind, InvalidActionError, NonFiniteSta
 from backends.mujoco_warp import MujocoWarpSim, build_spec, engine_to_generalized, generalized_to_engine  # noqa: E402
 from backends.mujoco_warp.adapter import FD_SCHEMES  # noqa: E402
 from backends.mujoco_warp.reference import float64_step_jacobians  # noqa: E402
-from harness.gradcheck import DEFAULT_TOLERANCE, gradcheck  # noqa: E402
+from harness.checks.gradcheck import DEFAULT_TOLERANCE, gradcheck  # noqa: E402
 from simcore import quat_from_angle_axis, quat_mul  # noqa: E402
 from tasks import make_task  # noqa: E402
 

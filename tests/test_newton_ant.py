@@ -13,7 +13,7 @@ pytest.importorskip("newton")
 import backends  # noqa: E402
 from backends import BackendError, ControlKind, InvalidActionError, NonFiniteStateError, make  # noqa: E402
 from backends.newton import NewtonSim  # noqa: E402
-from harness.gradcheck import DEFAULT_TOLERANCE, gradcheck  # noqa: E402
+from harness.checks.gradcheck import DEFAULT_TOLERANCE, gradcheck  # noqa: E402
 from tasks import make_task  # noqa: E402
 
 

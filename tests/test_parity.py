@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import pytest
 
-from harness import parity
+from harness.checks import parity
 from tasks import make_task
 
 pytest.importorskip("mujoco_warp")

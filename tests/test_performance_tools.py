@@ -107,7 +107,7 @@ def test_peer_without_its_interpreter_says_what_to_set(capsys, monkeypatch, tmp_
 def test_fd_schemes_measures_forward_differences_against_the_float64_reference(tmp_path):
     pytest.importorskip("mujoco_warp")
     from backends.mujoco_warp.adapter import FD_EPS_STATE
-    from harness.fd_schemes import fd_schemes, markdown
+    from harness.checks.fd_schemes import fd_schemes, markdown
 
     grid = (
         {"fd_scheme": "forward", "fd_eps_state": 2e-3, "fd_eps_velocity": 2e-3},
@@ -144,7 +144,7 @@ def test_fd_schemes_keeps_the_schemes_asked_for_and_counts_adaptive_second_sides
     """``schemes`` keeps only those rows (the control-step rows belong to the default scheme); an
     ``adaptive`` row's worlds per env are its 1 + P worlds plus the -eps worlds it added in contact."""
     pytest.importorskip("mujoco_warp")
-    from harness.fd_schemes import GRID, fd_schemes
+    from harness.checks.fd_schemes import GRID, fd_schemes
 
     report = fd_schemes(
         "ant",

@@ -8,9 +8,9 @@ import json
 import pytest
 
 import backends
-from harness.bench import RunSpec
 from harness.envs import run_task
 from harness.results import RunError
+from harness.suite.bench import RunSpec
 from tasks import UnknownPresetError, make_task, task_class
 
 
@@ -47,7 +47,7 @@ def test_a_run_from_before_presets_is_not_rebuilt_on_todays_defaults():
 @pytest.mark.skipif("pointmass" not in backends.available(), reason="the point-mass plug-in is absent")
 def test_resume_refuses_a_run_whose_physics_changed(tmp_path):
     from algorithms.config import preset
-    from harness.train import resume, train
+    from harness.run.train import resume, train
 
     cfg = preset("shac").replace(num_envs=4, horizon=4)
     run = tmp_path / "run"
@@ -65,7 +65,7 @@ def test_adapter_options_travel_with_a_run(tmp_path):
     a row of its own in the report; a bad option is refused before config.json is written."""
     from algorithms.config import preset
     from harness.report.records import load_run
-    from harness.train import resume, train
+    from harness.run.train import resume, train
 
     quiet = open("/dev/null", "w")
     cfg = preset("shac").replace(num_envs=4, horizon=2)

@@ -46,7 +46,7 @@ def _video_frames(video: Path) -> list[np.ndarray]:
 def test_a_video_holds_every_picture_in_order(encoder, tmp_path, monkeypatch):
     """Both encoders, on pictures whose brightness counts the frame: MP4 through ffmpeg (the pinned static
     build when none is installed), an animated GIF where no ffmpeg runs; no temporary file left behind."""
-    import harness.render as render
+    import harness.run.render as render
 
     if encoder == "gif":
         monkeypatch.setattr(render, "ffmpeg_executable", lambda: None)
@@ -152,7 +152,7 @@ def test_compare_picks_the_next_installed_engine_that_drives_the_task():
     """``--compare`` reads the engines from the registry in their adapters' table order: the reference
     engine beside any other, and an engine that cannot drive the task's control kind is passed over."""
     from harness.envs import engines_for
-    from harness.render import compared_backends
+    from harness.run.render import compared_backends
 
     assert compared_backends("mujoco_warp", "ant") == ["mujoco_warp", "newton"]
     assert compared_backends("newton", "go2") == ["newton", "mujoco_warp"]

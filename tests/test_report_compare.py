@@ -20,7 +20,7 @@ EVAL_FINALS = {"shac": [1.0, 2.0, 3.0, 4.0, 100.0], "sapo": [7.0]}
 
 
 def make_run(root: Path, algo: str, seed: int, final: float, grad_var: list[float]) -> Path:
-    """config.json, metrics.jsonl (one row per entry of ``grad_var``) and eval.json, as harness/train.py
+    """config.json, metrics.jsonl (one row per entry of ``grad_var``) and eval.json, as harness/run/train.py
     leaves them."""
     run = root / f"ant_newton_{algo}_s{seed}"
     run.mkdir(parents=True)

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.bench import RunSpec, load_spec, plan, train_job
 from harness.results import RunError
+from harness.suite.bench import RunSpec, load_spec, plan, train_job
 
 BLOCK = """
 [[train]]
@@ -62,7 +62,7 @@ def _runs(data: dict, store: Path) -> dict[tuple[str, int], RunSpec]:
 def _evaluated(run: RunSpec, store: Path, final_return: float) -> Path:
     """The folder a finished, evaluated run leaves (its checkpoints not kept): job.json, config.json, every
     epoch's metrics and an eval.json with the final policy's mean return."""
-    from harness.runner import _write_job_file
+    from harness.suite.runner import _write_job_file
 
     job = train_job(run, store / "runs" / run.dirname)
     _write_job_file(job)
@@ -119,7 +119,7 @@ def test_a_claim_decided_at_the_first_look_plans_no_seed_beyond_it(tmp_path):
 def test_a_started_run_beyond_what_the_design_wants_stays_planned(tmp_path):
     """A run the design no longer wants but that has begun (in flight: its job.json written, or stopped
     with metrics) is never orphaned: it stays in the plan, and resumes."""
-    from harness.runner import _write_job_file
+    from harness.suite.runner import _write_job_file
 
     data, store = _spec(tmp_path), tmp_path / "store"
     assert _five_pairs(data, store, DECIDED_VARIANT) == "decided"

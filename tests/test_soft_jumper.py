@@ -183,7 +183,7 @@ def test_a_broken_soft_body_gradient_fails_the_check(jumper):
     """The directional check the soft body gets (hundreds of coordinates) still fails an adapter that
     drops the state gradient."""
     from backends.newton import NewtonSim
-    from harness.gradcheck import DEFAULT_TOLERANCE, gradcheck
+    from harness.checks.gradcheck import DEFAULT_TOLERANCE, gradcheck
 
     class DropsStateGradient(NewtonSim):
         def simulate(self, state, control):
@@ -320,7 +320,7 @@ def test_forward_crosscheck_reports_com_paths_of_both_engines(monkeypatch):
     3 steps), COM paths from the same point, their distance growing from zero."""
     pytest.importorskip("mujoco_warp")
     import tasks
-    from harness.crosscheck import forward_crosscheck
+    from harness.checks.crosscheck import forward_crosscheck
 
     monkeypatch.setitem(tasks.REGISTRY._runtime, "tiny_jumper", TinyJumper)  # registered for this test only
     report = forward_crosscheck("tiny_jumper", ["newton", "mujoco_warp"], num_envs=1, steps=3, seed=0)

@@ -1,4 +1,4 @@
-"""Proposition 1's measurement (harness/step_gain.py): the tape's one-step Jacobian against central
+"""Proposition 1's measurement (harness/checks/step_gain.py): the tape's one-step Jacobian against central
 differences of the same step where the step is smooth (an Ant lifted clear of the ground), the gains
 as spectral norms, the window's growth against the one-step gain, and the end-to-end file of a tiny
 trained run."""
@@ -13,8 +13,7 @@ import pytest
 import torch
 
 from algorithms.config import preset
-from harness.results import RunError
-from harness.step_gain import (
+from harness.checks.step_gain import (
     compute_step_gain,
     gains,
     state_columns,
@@ -22,6 +21,7 @@ from harness.step_gain import (
     window_gain,
     write_step_gain,
 )
+from harness.results import RunError
 
 
 def test_gains_are_the_spectral_norms_of_the_state_and_action_blocks():
@@ -89,7 +89,7 @@ def test_a_one_step_window_grows_by_the_one_step_state_gain(airborne):
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     pytest.importorskip("newton")
-    from harness.train import train
+    from harness.run.train import train
 
     cfg = preset("shac-tdfixed").replace(num_envs=2, horizon=4, critic_iterations=1, grad_var_groups=2)
     return train(tmp_path_factory.mktemp("step_gain") / "run", "ant", "newton", cfg, epochs=1, stream=io.StringIO())

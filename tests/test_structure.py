@@ -88,7 +88,7 @@ def test_the_harness_has_no_import_circle():
     """Every harness module can be read knowing only the modules below it: no chain of imports, lazy
     ones included, returns to where it started."""
     graph = _harness_import_graph()
-    assert "harness.bench" in graph["harness.runner"]  # the graph sees real edges
+    assert "harness.suite.bench" in graph["harness.suite.runner"]  # the graph sees real edges
     done: set[str] = set()
 
     def visit(name: str, path: list[str]) -> None:
@@ -103,6 +103,34 @@ def test_the_harness_has_no_import_circle():
 
     for name in sorted(graph):
         visit(name, [])
+
+
+#: harness/'s wings, each importing only its own and those after it: the command line drives the suite,
+#: the suite runs checks and writes reports, checks and reports read runs, and everything stands on the
+#: core modules (results, bounds, words, envs, progress, resources) at the package's top.
+WINGS = ("cli", "suite", "checks", "report", "run", "core")
+#: top-level modules that sit above every wing: the entry point and the two public APIs for other packages
+ABOVE_THE_WINGS = {"harness.__main__", "harness.contract_suite", "harness.diffenv"}
+
+
+def _wing(module: str) -> str:
+    part = module.split(".")[1] if module.count(".") else "core"
+    return part if part in WINGS else "core"
+
+
+def test_the_harness_wings_import_only_downwards():
+    """A wing never imports one above it, so a newcomer reads ``run/`` without ``suite/``, and ``checks/``
+    without the command line."""
+    graph = _harness_import_graph()
+    assert {_wing(m) for m in graph} == set(WINGS)  # every wing is a package with modules in it
+    upward = [
+        f"{name} -> {target}"
+        for name, targets in graph.items()
+        if name not in ABOVE_THE_WINGS
+        for target in targets
+        if target not in ABOVE_THE_WINGS and WINGS.index(_wing(target)) < WINGS.index(_wing(name))
+    ]
+    assert not upward, "imports against the wings' order:\n" + "\n".join(sorted(upward))
 
 
 def test_no_function_in_the_harness_or_the_adapters_is_over_100_lines():

@@ -14,8 +14,8 @@ def test_events_hold_every_epoch_of_the_metrics_once(tmp_path):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     from algorithms.config import preset
-    from harness.tensorboard import FOLDER, tag
-    from harness.train import resume, train
+    from harness.run.tensorboard import FOLDER, tag
+    from harness.run.train import resume, train
 
     quiet = open("/dev/null", "w")
     run = tmp_path / "run"

@@ -5,7 +5,7 @@ the adjoint's cost split by part.
         [--horizon 32] [--rounds 6] [--out results/adjoint/ant_engines.json]
 
 Each round times one window of ``horizon`` steps with gradients and its backward pass
-(:func:`harness.throughput._window`, the perf profile's window) on each engine, the order alternating,
+(:func:`harness.checks.throughput._window`, the perf profile's window) on each engine, the order alternating,
 so both see the same machine even while its load moves; the ratio of the two medians is MuJoCo-Warp's
 speed as a fraction of Newton's. Then one more MuJoCo-Warp window runs under torch's profiler: the
 forward (MuJoCo-Warp's own step, recording each substep) and the backward by the adjoint's parts
@@ -143,8 +143,8 @@ def main() -> None:
     import torch
 
     from backends import make
+    from harness.checks.throughput import WARMUP_WINDOWS, _window
     from harness.results import provenance, write_json
-    from harness.throughput import WARMUP_WINDOWS, _window
     from tasks import make_task
 
     task = make_task(args.task)

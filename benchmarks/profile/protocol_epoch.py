@@ -5,7 +5,7 @@
     OMP_NUM_THREADS=1 python benchmarks/profile/protocol_epoch.py --algo shac --compare OLD_TREE [--rounds 3]
 
 One run is trained exactly as ``python -m harness train --task ant --backend newton --num-envs 64
---horizon 32`` trains it (``harness.train.train``: a checkpoint after every epoch, metrics.jsonl,
+--horizon 32`` trains it (``harness.run.train.train``: a checkpoint after every epoch, metrics.jsonl,
 TensorBoard, the progress line, the gradient statistics), in a temporary folder. Timers are wrapped
 around the functions that make up an epoch, in this process only: they read the clock and call the
 original, so the run's metrics are those of the plain command. Why wrappers rather than a sampling
@@ -98,7 +98,7 @@ class Clock:
 def _instrument(clock: Clock) -> None:
     """Wrap every function an epoch is made of (imports resolve in the tree chosen by ``--tree``)."""
     import algorithms.actor_critic as ac
-    import harness.train as train
+    import harness.run.train as train
     from backends.newton import tape
 
     algo = ac.FirstOrderActorCritic
@@ -149,7 +149,7 @@ def measure(args) -> dict:
     """Train one run under the timers; per-epoch wall times, parts and metrics (wall-time fields dropped)."""
     clock = Clock()
     _instrument(clock)
-    import harness.train as train
+    import harness.run.train as train
     from algorithms.config import preset
 
     cfg = preset(args.algo).replace(num_envs=args.num_envs, horizon=args.horizon)

@@ -15,7 +15,7 @@ from harness.results import harness_command
 
 
 def cmd_gradcheck(args) -> int:
-    from harness.gradcheck import DEFAULT_TOLERANCE, gradcheck
+    from harness.checks.gradcheck import DEFAULT_TOLERANCE, gradcheck
 
     preflight(
         backends=args.backend, task=args.task, device=args.device, out=args.out, memory=(args.num_envs, args.steps)
@@ -63,9 +63,9 @@ def cmd_gradcheck(args) -> int:
 def cmd_grad_growth(args) -> int:
     from pathlib import Path
 
-    from harness.grad_growth import grad_growth, parse_variant
+    from harness.checks.grad_growth import grad_growth, parse_variant
     from harness.results import write_check
-    from harness.run_folder import CHECKPOINT, read_config
+    from harness.run.folder import CHECKPOINT, read_config
 
     read_config(Path(args.run))
     if not (Path(args.run) / CHECKPOINT).exists():
@@ -85,7 +85,7 @@ def cmd_grad_growth(args) -> int:
 
 
 def cmd_grad_paths(args) -> int:
-    from harness.grad_paths import grad_paths, table
+    from harness.checks.grad_paths import grad_paths, table
 
     if args.algo not in ALGORITHMS:
         raise BadInput(f"unknown algorithm {args.algo!r}; choose from: {', '.join(ALGORITHMS)}")
@@ -118,7 +118,7 @@ def cmd_grad_paths(args) -> int:
 
 
 def cmd_parity(args) -> int:
-    from harness.parity import parity, plot, table
+    from harness.checks.parity import parity, plot, table
 
     if args.backends is None:  # the two first installed engines that drive the task
         from harness.envs import engines_for
@@ -168,7 +168,7 @@ def _write_result_and_table(out: str, kind: str, result: dict, text: str):
 
 def cmd_contact_jacobians(args) -> int:
     from backends.contract import BackendError
-    from harness.contact_jacobians import contact_jacobians, table
+    from harness.checks.contact_jacobians import contact_jacobians, table
 
     preflight(
         backends=args.backend,
@@ -204,7 +204,7 @@ def cmd_contact_jacobians(args) -> int:
 def cmd_crosscheck(args) -> int:
     import json
 
-    from harness.crosscheck import crosscheck, forward_crosscheck
+    from harness.checks.crosscheck import crosscheck, forward_crosscheck
     from harness.results import write_check
 
     if len(set(args.backends)) < 2 or len(set(args.backends)) != len(args.backends):

@@ -11,8 +11,7 @@ import types
 import typing
 
 from algorithms.config import ALGORITHMS
-from harness.cli.inputs import BadInput
-from harness.spec_schema import (
+from harness.bounds import (
     INT_MAX,
     MAX_CONTACT_STATES,
     MAX_ENVS,
@@ -26,6 +25,7 @@ from harness.spec_schema import (
     MAX_STEPS,
     MAX_STRIDE,
 )
+from harness.cli.inputs import BadInput
 from harness.words import parse_option
 
 
@@ -89,7 +89,7 @@ def _int(text: str) -> int:
 
 
 def _int_in(low: int, high: int):
-    """An integer flag in [low, high]: the limits a suite spec has (:mod:`harness.spec_schema`), so that
+    """An integer flag in [low, high]: the limits a suite spec has (:mod:`harness.suite.schema`), so that
     a value the types or the machine cannot hold is refused before any work."""
 
     def parse(text: str) -> int:

@@ -17,8 +17,8 @@ from harness.results import harness_command
 
 
 def cmd_throughput(args) -> int:
+    from harness.checks.throughput import measure
     from harness.results import write_check
-    from harness.throughput import measure
 
     memory = (args.num_envs, 0 if args.grad_cost_only else args.horizon)
     preflight(backends=args.backend, task=args.task, device=args.device, out=args.out, memory=memory)
@@ -48,8 +48,8 @@ def cmd_throughput(args) -> int:
 
 def _grad_cost_only(sim, args) -> int:
     """``throughput --grad-cost-only WORLDS``: forward windows as usual, the step with gradients estimated."""
+    from harness.checks.throughput import forward_rate
     from harness.results import write_check
-    from harness.throughput import forward_rate
 
     cost = sim.gradient_step_cost(args.grad_cost_only)
     if cost is None:
@@ -77,7 +77,7 @@ def _grad_cost_only(sim, args) -> int:
 
 
 def cmd_solver_probe(args) -> int:
-    from harness.solver_probe import run_probe
+    from harness.checks.solver_probe import run_probe
 
     preflight(backends=args.backend, task=args.task, out=args.out, memory=(args.num_envs, 0))
     if args.task not in ("ant", "go2", "soft_jumper"):
@@ -94,7 +94,7 @@ def cmd_solver_probe(args) -> int:
 
 
 def cmd_peer(args) -> int:
-    from harness.peers import PEER_TASKS, PEERS, PeerUnavailable, run_peer
+    from harness.checks.peers import PEER_TASKS, PEERS, PeerUnavailable, run_peer
     from harness.results import write_check
 
     if args.peer not in PEERS:
@@ -133,7 +133,7 @@ def cmd_fd_schemes(args) -> int:
     prefix = out_stem(args.out) if args.out else None  # PREFIX or PREFIX.json: both files
     memory = (max(args.num_envs, args.timing_envs), 1)
     preflight(backends="mujoco_warp", task=args.task, out=prefix and prefix + ".json", memory=memory)
-    from harness.fd_schemes import fd_schemes, markdown
+    from harness.checks.fd_schemes import fd_schemes, markdown
 
     print(f"fd-schemes mujoco_warp/{args.task}: accuracy on {args.num_envs} envs, cost at {args.timing_envs} envs")
     from backends.contract import BackendError
@@ -158,8 +158,8 @@ def cmd_fd_schemes(args) -> int:
 
 
 def cmd_scaling(args) -> int:
+    from harness.checks.scaling import scaling, to_csv, write
     from harness.results import provenance, write_check
-    from harness.scaling import scaling, to_csv, write
 
     validate_names(args.backend, args.task)
     check_device(args.device)
@@ -198,7 +198,7 @@ def cmd_scaling(args) -> int:
 def cmd_scaling_plot(args) -> int:
     from pathlib import Path
 
-    from harness.scaling import plot
+    from harness.checks.scaling import plot
 
     missing = [c for c in args.csv if not Path(c).is_file()]
     if missing:

@@ -30,7 +30,7 @@ def cmd_list(args) -> int:
 
 
 def cmd_train(args) -> int:
-    from harness.train import resume, train
+    from harness.run.train import resume, train
 
     if args.resume:
         given = [
@@ -69,8 +69,8 @@ def cmd_train(args) -> int:
 def cmd_eval(args) -> int:
     from pathlib import Path
 
-    from harness.run_folder import read_config
-    from harness.train import evaluate
+    from harness.run.folder import read_config
+    from harness.run.train import evaluate
 
     config = read_config(Path(args.run))
     if args.backend:
@@ -99,7 +99,7 @@ def cmd_report(args) -> int:
     from pathlib import Path
 
     from harness.report import write_report
-    from harness.run_folder import read_config
+    from harness.run.folder import read_config
 
     runs = [Path(r) for r in args.runs]
     for run in runs:
@@ -115,7 +115,7 @@ def cmd_sweep(args) -> int:
     (runs addressed and reused as the bench's, tables and plots beside them in OUT)."""
     from pathlib import Path
 
-    from harness.runner import run_suite
+    from harness.suite.runner import run_suite
 
     preflight(backends=args.backend, task=args.task, device=args.device)
     for name in args.algos:
@@ -150,7 +150,7 @@ def cmd_sweep(args) -> int:
 
 
 def cmd_bench(args) -> int:
-    from harness.runner import run_suite
+    from harness.suite.runner import run_suite
 
     if args.device:
         check_device(args.device)
@@ -189,7 +189,7 @@ def cmd_readme(args) -> int:
 
 
 def cmd_bench_run(args) -> int:
-    from harness.runner import bench_run
+    from harness.suite.runner import bench_run
 
     bench_run(args.run_dir)
     return 0
@@ -207,8 +207,8 @@ def cmd_render(args) -> int:
     if os.environ["MUJOCO_GL"].lower().strip() not in RENDER_GL:
         shown = ", ".join(g for g in RENDER_GL if g)
         raise BadInput(f"MUJOCO_GL={os.environ['MUJOCO_GL']!r}: render draws with one of {shown}")
-    from harness.render import compared_backends, render
-    from harness.run_folder import read_config
+    from harness.run.folder import read_config
+    from harness.run.render import compared_backends, render
 
     config = read_config(Path(args.run))
     trained_on = config["backend"]
@@ -224,9 +224,9 @@ def cmd_render(args) -> int:
 def cmd_landscape(args) -> int:
     from pathlib import Path
 
-    from harness.landscape import compute_landscape, write_landscape
+    from harness.checks.landscape import compute_landscape, write_landscape
     from harness.report.plots import plot_landscape
-    from harness.run_folder import read_config
+    from harness.run.folder import read_config
 
     config = read_config(Path(args.run))
     if args.num_envs:  # one window of the run's h steps per point, no backward pass
@@ -245,8 +245,8 @@ def cmd_landscape(args) -> int:
 def cmd_step_gain(args) -> int:
     from pathlib import Path
 
-    from harness.run_folder import read_config
-    from harness.step_gain import compute_step_gain, write_step_gain
+    from harness.checks.step_gain import compute_step_gain, write_step_gain
+    from harness.run.folder import read_config
 
     config = read_config(Path(args.run))
     # one window of the run's h steps with its graph kept, every env

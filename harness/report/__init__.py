@@ -18,7 +18,7 @@ part writes it as ``NAME_PART.csv`` (with its own ``.provenance.json``) and as a
 * ``wall_time``: the time split of every run; ``throughput``: env-steps/s of the throughput checks;
 * ``backends``: one algorithm x task x horizon on every backend side by side;
 * ``sim_to_sim`` (+ ``_mean``): a policy evaluated on another backend than it trained on;
-* ``landscape``: the roughness of the h-step and TD-lambda actor losses (``harness/landscape.py``);
+* ``landscape``: the roughness of the h-step and TD-lambda actor losses (``harness/checks/landscape.py``);
 * ``checks``: every check file (gradcheck, throughput, crosscheck) in one line each.
 
 Plots (PNG, matplotlib's Agg backend, one figure per file): ``learning_curves_steps``,

@@ -686,7 +686,7 @@ def throughput_document(checks: list[CheckRecord]) -> Table:
             )
         ],
         [
-            "env-steps/s = envs x steps / seconds, best of the timed windows (harness/throughput.py). "
+            "env-steps/s = envs x steps / seconds, best of the timed windows (harness/checks/throughput.py). "
             "adapter/bare: time through this project's adapter over the engine's own loop (1.0 = no overhead). "
             "Estimated: `throughput --grad-cost-only` (finite-difference worlds timed, not a full step)."
         ],
@@ -817,7 +817,7 @@ def landscape_document(runs: list[RunRecord]) -> Table:
             ),
         ],
         [
-            "Roughness: total variation of the loss surface per grid line over its range (harness/landscape.py; "
+            "Roughness: total variation of the loss surface per grid line over its range (harness/checks/landscape.py; "
             "0.5 for a plane, >> 1 for a jagged surface). Ratio: h-step / TD-lambda (> 1: TD-lambda smoother).",
             "The claim's estimand, interval and verdict words are fixed in docs/statistics.md (Fig. 3): the "
             "geometric mean over final policies of the ratio, a one-sample t interval on the log-ratios; "
@@ -869,7 +869,7 @@ def step_gain_document(runs: list[RunRecord]) -> Table:
         [
             "State gain: the spectral norm of one control step's Jacobian d s'/d s over the generalized "
             "coordinates (root quaternion left out), at states the final policy visits with stochastic actions "
-            "(harness/step_gain.py). Its units mix positions and velocities: the bound is read in the "
+            "(harness/checks/step_gain.py). Its units mix positions and velocities: the bound is read in the "
             "coordinates the algorithms see. Growth per step over a window: ||d s_{t+h}/d s_t||^(1/h) with the "
             "actions held, the rate eq. 19's chain actually compounds at; a norm of a product is at most the "
             "product of the norms, so the per-step gain bounds it from above. Verdict read as docs/statistics.md "

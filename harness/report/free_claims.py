@@ -24,8 +24,8 @@ how much of that pace each run used, which tells whether the fall of Fig. 4b is 
 (the data set only its direction) or slower (the data set its pace too).
 
 **Smoothness (Fig. 3)** and **the bound (Proposition 1)** read what two analyses of a final policy wrote
-into its run folder: the loss landscape (``landscape.json``, :mod:`harness.landscape`) and the one-step
-Jacobian gains along the policy (``step_gain.json``, :mod:`harness.step_gain`);
+into its run folder: the loss landscape (``landscape.json``, :mod:`harness.checks.landscape`) and the one-step
+Jacobian gains along the policy (``step_gain.json``, :mod:`harness.checks.step_gain`);
 :func:`landscape_claim_table` and :func:`step_gain_claim_table` apply the readings docs/statistics.md
 fixed for them.
 """
@@ -45,7 +45,7 @@ from algorithms.config import AlgoConfig
 from harness.report.records import RunRecord, base_algo, by_group, metric_column, value_or_range
 from harness.report.sequential import CONFIRMED, CONTRADICTED, NOT_CONFIRMED, UNDECIDED, at_paper_protocol
 from harness.report.stats import epoch_median
-from harness.run_folder import CONFIG
+from harness.run.folder import CONFIG
 
 CONFIDENCE = 0.95
 GRADIENT_STATISTICS = ("actor_grad_var", "actor_grad_nsr")  # the raw variance (Fig. 2's) and the noise-to-signal
@@ -449,7 +449,7 @@ def smoothness_verdict(low: float, high: float, policies: int, paper_protocol: b
 
 def landscape_claim_table(runs: list[RunRecord]) -> pd.DataFrame:
     """Fig. 3's claim, one row per setting and landscape protocol (grid, span, envs): the final policies
-    with a landscape.json (``harness/landscape.py``), each its own pair, since both losses are mapped on
+    with a landscape.json (``harness/checks/landscape.py``), each its own pair, since both losses are mapped on
     the same plane, start state and action noise. Estimand (docs/statistics.md, Fig. 3): the geometric
     mean over policies of roughness(h-step) / roughness(TD-lambda); 95% CI: the one-sample t interval of
     the log-ratios, exponentiated. A surface with non-finite points has no roughness: its policy is left
@@ -499,7 +499,7 @@ BOUND_FAILS = "fails: B_f above 1/(gamma lambda); the TD-lambda gradient's varia
 
 
 def step_gain_claim_table(runs: list[RunRecord]) -> pd.DataFrame:
-    """Proposition 1, one row per setting: the one-step state gains (``harness/step_gain.py``) of every
+    """Proposition 1, one row per setting: the one-step state gains (``harness/checks/step_gain.py``) of every
     final policy with a step_gain.json, pooled over its states. The pre-registered reading
     (docs/statistics.md): the bound holds when the pooled gains' 95th percentile is below
     1 / (gamma lambda) at the paper's lambda 0.95. Beside it, descriptive: the median gain, the

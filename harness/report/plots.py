@@ -481,7 +481,7 @@ SCALING_PASSES = (("forward_steps_per_s", "forward"), ("forward_backward_steps_p
 
 
 def plot_scaling(rows: list[dict], path: Path, title: str = "") -> Path:
-    """Log-log env-steps/s against the number of envs (``scaling`` rows, :mod:`harness.scaling`): one colour
+    """Log-log env-steps/s against the number of envs (``scaling`` rows, :mod:`harness.checks.scaling`): one colour
     per backend x task, solid forward, dashed with gradients; counts without a rate (skipped) are left out."""
     points = [
         {

@@ -17,7 +17,7 @@ import pandas as pd
 from algorithms.config import ALGORITHMS
 from harness.envs import engine_rank
 from harness.results import RunError, read_metrics
-from harness.run_folder import (
+from harness.run.folder import (
     CONFIG,
     EVALUATION,
     LANDSCAPE,

@@ -1,6 +1,6 @@
 """The pre-registered analysis of the paper's claims of improvement (docs/statistics.md): estimand,
 interval, decision rule and verdict words, applied at fixed looks as seeds arrive, and how many seeds
-each comparison still wants (which the protocol's planner reads, ``harness/bench.py``).
+each comparison still wants (which the protocol's planner reads, ``harness/suite/bench.py``).
 
 The design is paired: seed s gives every algorithm the same initial policy and the same environments, so
 a claim is judged on seed pairs (variant_s, base_s). The estimand is the paper's: the relative change of

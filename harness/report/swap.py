@@ -35,7 +35,7 @@ def _own(prefix: str, suffix: str = "") -> str:
 
 
 def _writer_gone(name: str, prefix: str, suffix: str = "") -> bool:
-    from harness.folder_claims import process_alive
+    from harness.run.folder_claims import process_alive
 
     pid = name.removeprefix(prefix).removesuffix(suffix)
     return pid.isdigit() and int(pid) != os.getpid() and not process_alive(int(pid))

@@ -34,7 +34,7 @@ from harness.report.stats import (
     sample_std,
     seeds_needed,
 )
-from harness.run_folder import EVALUATION
+from harness.run.folder import EVALUATION
 
 TIME_PARTS = (  # (column stem, label, metrics field)
     ("sim_forward", "sim forward", "sim_forward_s"),

@@ -1,6 +1,6 @@
 """How an adapter's cost grows with the number of envs: throughput over num_envs, CSV and a log-log plot.
 
-For each env count a fresh adapter is built and :func:`harness.throughput.measure` times forward-only
+For each env count a fresh adapter is built and :func:`harness.checks.throughput.measure` times forward-only
 and forward+backward windows (best of ``windows`` after a warm-up; no bare-engine rounds, which
 ``throughput`` reports). An env count that fails (memory, a buffer overflow) is recorded with its
 error and the sweep goes on; a count over ``max_seconds`` of estimated time is skipped and recorded as
@@ -18,9 +18,9 @@ import io
 import time
 from pathlib import Path
 
+from harness.checks.throughput import forward_rate, measure
 from harness.envs import make_sim
 from harness.results import atomic_write_text
-from harness.throughput import forward_rate, measure
 from tasks import make_task
 
 DEFAULT_ENVS = (1, 4, 16, 64, 256)

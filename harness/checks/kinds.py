@@ -1,6 +1,6 @@
 """The bench suite's check kinds, each declared once: what it checks, how its jobs are addressed and
 what a job of it costs. The spec schema's list of valid kinds and the planner's jobs both read it
-(:func:`harness.bench.plan`); each kind is also a verb of ``python -m harness`` of the same name.
+(:func:`harness.suite.bench.plan`); each kind is also a verb of ``python -m harness`` of the same name.
 """
 
 from __future__ import annotations

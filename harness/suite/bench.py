@@ -32,7 +32,7 @@
   ``num_envs``);
 * ``[[step_gain]]``: runs of the grid (selected as for a landscape) whose one-step Jacobian gains are
   measured along their final policy (``states``, ``stride``, ``num_envs``; Proposition 1,
-  :mod:`harness.step_gain`);
+  :mod:`harness.checks.step_gain`);
 * analysis blocks select runs without hyperparameters unless they name the runs' ``hyperparameters``
   (an ablation's), and skip, with a line, finished runs whose final checkpoint was not kept;
 * ``[[render]]``: runs of the grid (selected as for a landscape) whose final policy is rendered
@@ -53,7 +53,7 @@ resumed from its last checkpoint (``train --resume`` semantics), and none is eve
 finished on another device (``bench --device cuda`` on a GPU machine, into the same store) stands in for
 the same configuration on this one: it is reused, and its provenance says where it ran.
 Checks and analyses are addressed the same way by their command line. How the jobs run (their
-own processes, logs, failures, Ctrl-C): :mod:`harness.runner`.
+own processes, logs, failures, Ctrl-C): :mod:`harness.suite.runner`.
 """
 
 from __future__ import annotations
@@ -66,10 +66,10 @@ import sys
 import tomllib
 from pathlib import Path
 
-from harness.check_kinds import KINDS
-from harness.peers import PEERS
+from harness.checks.kinds import KINDS
+from harness.checks.peers import PEERS
 from harness.results import RunError
-from harness.run_folder import (
+from harness.run.folder import (
     CHECKPOINT,
     CONFIG,
     EVALUATION,
@@ -83,7 +83,7 @@ from harness.run_folder import (
     training_complete,
 )
 
-PROFILES_DIR = Path(__file__).resolve().parent / "profiles"
+PROFILES_DIR = Path(__file__).resolve().parents[1] / "profiles"
 
 # The first ETA's seconds per env step where an adapter measured nothing for a task (a plug-in's, say):
 # a guess; finished jobs correct it. Adapters ship their own (backends.contract.TaskCost).
@@ -128,8 +128,8 @@ def load_spec(profile: str | None = None, spec_file: str | None = None) -> tuple
 
 
 def check_spec(data: dict, where: str) -> dict:
-    """``data`` if every key of the spec is valid (:mod:`harness.spec_schema`, one pass, one line)."""
-    from harness.spec_schema import validate_spec
+    """``data`` if every key of the spec is valid (:mod:`harness.suite.schema`, one pass, one line)."""
+    from harness.suite.schema import validate_spec
 
     return validate_spec(data, where)
 
@@ -369,7 +369,7 @@ class Job:
 def damage(run_dir: Path) -> str | None:
     """Why the run folder's config.json cannot be used (torn, not JSON, a field out of range), or None
     where it reads or does not exist yet."""
-    from harness.run_folder import read_config
+    from harness.run.folder import read_config
 
     if not (run_dir / CONFIG).exists():
         return None
@@ -646,7 +646,7 @@ def plan(data: dict, store: Path, stream=None) -> list[Job]:
 
 
 def _check_jobs(data: dict, store: Path, device: str, known: dict) -> list[Job]:
-    """One job per check block x task x target (:data:`harness.check_kinds.KINDS`), labelled apart."""
+    """One job per check block x task x target (:data:`harness.checks.kinds.KINDS`), labelled apart."""
     jobs: list[Job] = []
     check_args: list[list[str]] = []  # each check job's extra words, in order
     for i, block in enumerate(data.get("check", [])):
@@ -846,7 +846,7 @@ class _Analyses:
     def render(self, data: dict) -> list[Job]:
         """A video of each selected run's final policy, beside the other engine's with ``compare``."""
         jobs: list[Job] = []
-        from harness.render import compared_backends, record_stem
+        from harness.run.render import compared_backends, record_stem
 
         for i, block in enumerate(data.get("render", [])):
             where = f"[[render]] #{i + 1}"

@@ -13,7 +13,7 @@ store, so a cluster's results land where a local run's would, in the same folder
   job is a Ray task that asks for one CPU, plus ``--gpus-per-run`` of a GPU when the suite's device is
   CUDA, and runs the command in a child process on whichever node Ray picks. The store must be a path
   every node sees (shared storage). A task whose worker dies (node lost, process killed) is retried by
-  Ray; the retry resumes the run from its last checkpoint, and the run's claim (harness/folder_claims.py)
+  Ray; the retry resumes the run from its last checkpoint, and the run's claim (harness/run/folder_claims.py)
   guarantees that the dead worker, or a second suite racing for the same spec, never writes the run
   at the same time. The child dies with its Ray worker (``PR_SET_PDEATHSIG``), so a killed worker
   leaves no orphan training behind.

@@ -29,12 +29,12 @@ EVAL_SEED = 10_000  # evaluate()'s first seed
 
 def rollout(run_dir: Path, config: dict, backend: str, steps: int) -> tuple[object, list[np.ndarray], list[float]]:
     """The task, env 0's state before each step (what the scene draws) and the return so far; ``config``:
-    the run's, as :func:`harness.run_folder.open_run` checked it for ``backend``."""
+    the run's, as :func:`harness.run.folder.open_run` checked it for ``backend``."""
     from algorithms.actor_critic import FirstOrderActorCritic
     from backends.render import state_picture_input
     from harness.envs import make_env, run_task
-    from harness.run_folder import CHECKPOINT
-    from harness.train import load_checkpoint
+    from harness.run.folder import CHECKPOINT
+    from harness.run.train import load_checkpoint
 
     cfg = config["algo_config"]
     torch.manual_seed(EVAL_SEED)
@@ -99,7 +99,7 @@ PARTIAL = ".part"  # a video being written: ``.NAME.mp4.PID.part``
 def remove_leftovers(folder: Path, stream=None) -> None:
     """Remove what an interrupted render left in ``folder``: partial videos whose writer is gone, and
     the ``tmpXXXXXXXX.mp4`` files earlier versions wrote there (a real video extension on half a video)."""
-    from harness.folder_claims import process_alive
+    from harness.run.folder_claims import process_alive
 
     for path in folder.glob(f".*{PARTIAL}"):
         pid = path.name.removesuffix(PARTIAL).rpartition(".")[2]
@@ -155,7 +155,7 @@ def render(run_dir: str | Path, backends: list[str], steps: int, frames: int, st
     """Write the video and filmstrip of the run's final policy on ``backends`` (two: side by side). The run
     folder is checked for every backend before the first frame."""
     from backends.contract import BackendError
-    from harness.run_folder import CHECKPOINT, open_run
+    from harness.run.folder import CHECKPOINT, open_run
 
     run_dir = Path(run_dir)
     stream = stream or sys.stdout

@@ -13,7 +13,7 @@ columns together):
 * contact-free: the task's initial states lifted to 2 m (the segment ``gradcheck`` uses), where the
   step is smooth and the reference is exact: the maximum over ``num_envs`` envs;
 * in contact: ``contact_states`` states sampled from random rollouts and kept where MuJoCo C finds a
-  contact (:func:`harness.contact_jacobians.sample_contact_states`, as the in-contact check samples
+  contact (:func:`harness.checks.contact_jacobians.sample_contact_states`, as the in-contact check samples
   them): the median, the share within 5%, and the median over the states whose friction sticks
   (where the step is smooth at the reference's scale; where it slides or a contact is made or
   broken, no finite step is exact).
@@ -92,8 +92,8 @@ def control_rows(task, factors=CONTROL_FACTORS) -> tuple[dict, ...]:
 
 def _references(sim, engine: torch.Tensor, control: torch.Tensor, model) -> list[tuple[np.ndarray, float]]:
     """Per env: the float64 reference Jacobian (state and control columns) of its control step, and its
-    state gain (:func:`harness.contact_jacobians.gains`)."""
-    from harness.contact_jacobians import gains, tangent_gain_columns
+    state gain (:func:`harness.checks.contact_jacobians.gains`)."""
+    from harness.checks.contact_jacobians import gains, tangent_gain_columns
 
     position_cols, velocity_cols = tangent_gain_columns(sim.layout)
     refs = []
@@ -107,7 +107,7 @@ def _references(sim, engine: torch.Tensor, control: torch.Tensor, model) -> list
 def _errors(sim, engine: torch.Tensor, control: torch.Tensor, refs: list[tuple[np.ndarray, float]]) -> list[dict]:
     """Per env: the relative error of the step's whole Jacobian and of each kind's column block, and
     the ratio of its state gain to the reference's."""
-    from harness.contact_jacobians import gains, tangent_gain_columns
+    from harness.checks.contact_jacobians import gains, tangent_gain_columns
 
     _, jac_state, jac_control = sim.step_jacobians(engine, control)
     layout = sim.layout
@@ -137,7 +137,7 @@ def _contact_free(task, sim, num_envs: int, seed: int):
 
 def _contact(task, sim, model, count: int, seed: int, settle: int):
     """(engine states, controls, classes) of ``count`` states in contact, in batches of the sim's envs."""
-    from harness.contact_jacobians import contact_predicate, sample_contact_states
+    from harness.checks.contact_jacobians import contact_predicate, sample_contact_states
 
     q, qd, actions = sample_contact_states(sim, count, settle, 5, seed, 0.5, contact_predicate(sim, model))
     n = sim.num_envs

@@ -21,8 +21,8 @@ import json
 from pathlib import Path
 
 from algorithms.config import REMOVED_HYPERPARAMETERS, AlgoConfig
+from harness.bounds import INT_MAX, MAX_EPOCHS
 from harness.results import RunError
-from harness.spec_schema import INT_MAX, MAX_EPOCHS
 
 # -- the files of a run folder: every module names them through these ----------------------------------
 CONFIG = "config.json"  # what the run is: task, backend, seed, physics, hyperparameters, provenance
@@ -224,7 +224,7 @@ def address_key(payload) -> str:
 def address(config: dict) -> dict:
     """What a run folder is addressed by, read from its config (:func:`read_config`): the fields that make
     the result (task, backend, seed, device, epochs, hyperparameters, physics, engine options and
-    gradient settings). The suite plans the same fields (:meth:`harness.bench.RunSpec.identity`) and
+    gradient settings). The suite plans the same fields (:meth:`harness.suite.bench.RunSpec.identity`) and
     refuses a folder whose address differs from its plan's."""
     recorded = {k: config[k] for k in ("task", "backend", "seed", "device", "epochs")}
     recorded["algo"] = config["algo_config"].as_dict()

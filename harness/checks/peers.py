@@ -29,7 +29,7 @@ class PeerUnavailable(ValueError):
 def peer_script(peer: str) -> Path:
     """The peer's script: in the checkout this module belongs to, else under the working directory."""
     name = Path("benchmarks") / "peers" / PEERS[peer][0]
-    for root in (Path(__file__).resolve().parents[1], Path.cwd()):
+    for root in (Path(__file__).resolve().parents[2], Path.cwd()):
         if (root / name).is_file():
             return root / name
     raise PeerUnavailable(f"{name} is not here: run `harness peer` from a checkout of the repository")

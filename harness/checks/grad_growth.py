@@ -19,8 +19,8 @@ from pathlib import Path
 import torch
 
 from algorithms.actor_critic import FirstOrderActorCritic
-from harness.run_folder import CHECKPOINT, open_run
-from harness.train import load_checkpoint
+from harness.run.folder import CHECKPOINT, open_run
+from harness.run.train import load_checkpoint
 
 
 def parse_variant(text: str) -> dict:

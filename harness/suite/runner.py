@@ -1,6 +1,6 @@
-"""Running a suite's jobs (:mod:`harness.bench` plans them): ``workers`` at a time, each in its own process.
+"""Running a suite's jobs (:mod:`harness.suite.bench` plans them): ``workers`` at a time, each in its own process.
 
-Every job runs as ``python -m harness ...`` (local processes, or Ray tasks: :mod:`harness.launchers`)
+Every job runs as ``python -m harness ...`` (local processes, or Ray tasks: :mod:`harness.suite.launchers`)
 with its output in ``STORE/NAME/logs/``; a job starts once the jobs it needs are done, a failing job
 is reported and the suite goes on with the others, and a progress line (jobs done, ETA from the
 estimated costs, corrected by the jobs that finished) follows every event. Ctrl-C or SIGTERM stops
@@ -19,7 +19,12 @@ import threading
 import time
 from pathlib import Path
 
-from harness.bench import (
+from harness.checks.kinds import CHECK_KINDS
+from harness.progress import ProgressLine, duration
+from harness.results import RunError, RunStopped, path_problem
+from harness.run.folder import CONFIG, JOB
+from harness.run.folder_claims import Claim
+from harness.suite.bench import (
     Job,
     check_spec,
     damage,
@@ -27,11 +32,6 @@ from harness.bench import (
     memory_problem,
     plan,
 )
-from harness.check_kinds import CHECK_KINDS
-from harness.folder_claims import Claim
-from harness.progress import ProgressLine, duration
-from harness.results import RunError, RunStopped, path_problem
-from harness.run_folder import CONFIG, JOB
 
 
 class SuiteStopped(RunStopped):
@@ -94,9 +94,9 @@ class _SuiteProgress:
 
 def run_jobs(jobs: list[Job], store: Path, workers: int, name: str, stream=None, launcher=None) -> list[Job]:
     """Run the jobs not yet done, ``workers`` at a time, in order, each after the jobs it needs, on
-    ``launcher`` (harness/launchers.py; default: local processes)."""
+    ``launcher`` (harness/suite/launchers.py; default: local processes)."""
     stream = stream or sys.stdout  # the stdout of now, not of import time
-    from harness.launchers import LocalLauncher
+    from harness.suite.launchers import LocalLauncher
 
     launcher = launcher or LocalLauncher(workers)
     logs = store / "logs"
@@ -177,7 +177,7 @@ class _Scheduler:
                 self.cond.notify_all()
 
     def run_one(self, job: Job) -> None:
-        from harness.launchers import last_error_line
+        from harness.suite.launchers import last_error_line
 
         if job.kind == "train":
             _write_job_file(job)
@@ -238,7 +238,7 @@ def bench_run(run_dir: str | Path, stream=None) -> Path:
     path = run_dir / JOB
     if not path.is_file():
         raise RunError(f"{run_dir} has no job.json: bench-run runs directories planned by `bench`")
-    from harness.train import job_problem, train_planned
+    from harness.run.train import job_problem, train_planned
 
     try:
         job = json.loads(path.read_text())
@@ -310,7 +310,7 @@ def run_suite(
     every job succeeded. The spec is a profile, a TOML file or ``spec``, one made in memory (``sweep``);
     ``device``, where given, replaces its [suite] device."""
     stream = stream or sys.stdout  # the stdout of now, not of import time
-    from harness.launchers import make_launcher
+    from harness.suite.launchers import make_launcher
 
     if spec is not None:
         data, spec_path = check_spec(spec, "the sweep's spec"), "(made in memory by sweep)"

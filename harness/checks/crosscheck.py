@@ -3,7 +3,7 @@
 For each segment (contact-free: root lifted to the task's ``airborne_height``; with contact: the task's own start) every
 backend's gradient of the same loss (the summed task reward over ``steps`` control steps) w.r.t.
 the actions and the initial generalized state is computed, and so is each backend's own
-autograd-vs-finite-difference error (:func:`harness.gradcheck.gradcheck`). Reported per pair:
+autograd-vs-finite-difference error (:func:`harness.checks.gradcheck.gradcheck`). Reported per pair:
 ``||g_a - g_b|| / ||g_b||`` and the cosine between the gradients. The engines differ (contact
 models, coordinates, armature), so agreement is reported, not required.
 
@@ -24,8 +24,8 @@ import itertools
 
 import torch
 
+from harness.checks.gradcheck import gradcheck, rollout_loss
 from harness.envs import make_sim
-from harness.gradcheck import gradcheck, rollout_loss
 
 
 def _gradients(sim, q0, qd0, actions) -> dict[str, torch.Tensor]:
@@ -105,7 +105,7 @@ def forward_crosscheck(
     gives the COM of each (the task's ``com`` if it has one, else the particle centroid or the root)
     every step, and per pair the largest distance between them so far (max over envs).
     """
-    from harness.solver_probe import body_position
+    from harness.checks.solver_probe import body_position
     from tasks import make_task
 
     task = make_task(task_name)

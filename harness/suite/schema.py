@@ -1,7 +1,7 @@
 """The bench suite's spec schema: every key of a spec typed, ranged and checked in one pass before the
-planner (:func:`harness.bench.plan`) or any job starts.
+planner (:func:`harness.suite.bench.plan`) or any job starts.
 
-A spec is TOML (``harness/bench.py``'s docstring lists its keys). :func:`validate_spec` walks it against
+A spec is TOML (``harness/suite/bench.py``'s docstring lists its keys). :func:`validate_spec` walks it against
 :data:`SCHEMA` and raises :class:`~harness.results.RunError` with one line naming the key's path
 (``[[train]] #2 epochs``) and what is valid, for: a wrong type (a string for an integer, a boolean for a
 number, a list given as a string, ``sequential = "yes"`` for true), a value out of range (epochs 0, a
@@ -21,20 +21,20 @@ import math
 import re
 from collections.abc import Callable
 
+from harness.bounds import (
+    INT_MAX,
+    MAX_ENVS,
+    MAX_EPOCHS,
+    MAX_EVAL_SEEDS,
+    MAX_GRID,
+    MAX_HORIZON,
+    MAX_SPAN,
+    MAX_STEP_GAIN_STATES,
+    MAX_STEPS,
+    MAX_STRIDE,
+)
 from harness.results import RunError
 
-INT_MAX = 2**31 - 1  # seeds: torch.manual_seed and numpy generators take them; engines hash them as int32
-MAX_ENVS = 65_536
-MAX_GRID = 400
-MAX_STEP_GAIN_STATES = 65_536
-MAX_STRIDE = 1000
-MAX_CONTACT_STATES = 4096  # contact-jacobians, fd-schemes: each state costs a float64 reference (about a second)
-MAX_SEGMENT_STEPS = 10_000  # a compared or differentiated segment (gradcheck, crosscheck, parity); stored per step
-MAX_SPAN = 100.0  # a landscape axis's half-width in the policy's parameter units (the paper's is 1)
-MAX_EPOCHS = 10**6
-MAX_HORIZON = 10_000
-MAX_EVAL_SEEDS = 1000
-MAX_STEPS = 10**6
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,99}$")
 
 Check = Callable[[object, str], None]
@@ -150,7 +150,7 @@ def _algos() -> list[str]:
 
 
 def _check_kinds() -> list[str]:
-    from harness.check_kinds import CHECK_KINDS
+    from harness.checks.kinds import CHECK_KINDS
 
     return list(CHECK_KINDS)
 
@@ -228,7 +228,7 @@ TRAIN = table(
         "per_task": _per_task,
         "eval": table(EVAL),
         "backend_options": _options,
-        "sequential": boolean,  # the seeds list is the most the pre-registered design may use (harness/bench.py)
+        "sequential": boolean,  # the seeds list is the most the pre-registered design may use (harness/suite/bench.py)
     },
     required=("backends", "tasks", "algos", "epochs"),
 )

@@ -40,8 +40,8 @@ import torch
 from algorithms.actor_critic import FirstOrderActorCritic
 from harness.envs import make_env, run_task
 from harness.results import RunError, provenance, write_json
-from harness.run_folder import CHECKPOINT, STEP_GAIN, open_run
-from harness.train import load_checkpoint
+from harness.run.folder import CHECKPOINT, STEP_GAIN, open_run
+from harness.run.train import load_checkpoint
 
 #: the quantile of the per-state gains the verdict reads (docs/statistics.md, Proposition 1)
 QUANTILE = 0.95

@@ -39,8 +39,8 @@ from algorithms.actor_critic import FirstOrderActorCritic
 from algorithms.returns import actor_loss_from_returns, h_step_returns, segment_starts, td_lambda_returns
 from harness.envs import make_env, run_task
 from harness.results import RunError, provenance, write_json
-from harness.run_folder import CHECKPOINT, LANDSCAPE, open_run
-from harness.train import load_checkpoint
+from harness.run.folder import CHECKPOINT, LANDSCAPE, open_run
+from harness.run.train import load_checkpoint
 
 DIRECTIONS = "filter-normalised Gaussian (Li et al. 2018), rows of weight matrices, biases 0"
 SURFACES = ("h_step", "td_lambda")

@@ -40,7 +40,6 @@ from algorithms.actor_critic import FirstOrderActorCritic
 from algorithms.config import AlgoConfig
 from backends.contract import BackendError
 from harness.envs import make_env, run_task
-from harness.folder_claims import process_alive
 from harness.progress import ProgressLine, duration
 from harness.results import (
     RunError,
@@ -52,7 +51,7 @@ from harness.results import (
     slow_write_for_tests,
     write_json,
 )
-from harness.run_folder import (
+from harness.run.folder import (
     CHECKPOINT,
     CONFIG,
     EVALUATION,
@@ -70,8 +69,9 @@ from harness.run_folder import (
     training_complete,
     upgrade_notes,
 )
-from harness.tensorboard import FOLDER as TENSORBOARD_FOLDER
-from harness.tensorboard import EpochScalars
+from harness.run.folder_claims import process_alive
+from harness.run.tensorboard import FOLDER as TENSORBOARD_FOLDER
+from harness.run.tensorboard import EpochScalars
 
 # metrics that measure time, not the run: everything else is equal between a resumed and an uninterrupted run
 WALL_TIME_FIELDS = (
@@ -97,7 +97,7 @@ def _set_rng_state(state: dict) -> None:
 
 def save_checkpoint(path: Path, algo: FirstOrderActorCritic, env, progress: dict, run: dict | None = None) -> None:
     """Write a checkpoint atomically: temporary file, fsync, rename (a kill leaves the old one intact).
-    ``run``: what it records of the run it belongs to (:func:`harness.run_folder.run_identity`)."""
+    ``run``: what it records of the run it belongs to (:func:`harness.run.folder.run_identity`)."""
     if not algo.parameters_finite():
         raise RunError(f"refusing to write {path.name}: the algorithm holds non-finite weights")
     payload = {
@@ -111,7 +111,7 @@ def save_checkpoint(path: Path, algo: FirstOrderActorCritic, env, progress: dict
         "progress": progress,
         "run": run,
     }
-    # a name of this writer's own: a worker presumed dead (harness/folder_claims.py) never shares a half-written file
+    # a name of this writer's own: a worker presumed dead (run/folder_claims.py) never shares a half-written file
     tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
     with tmp.open("wb") as fh:
         torch.save(payload, fh)
