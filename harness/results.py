@@ -274,6 +274,16 @@ def write_check(path: str | os.PathLike, kind: str, result: dict, command: str |
     return write_json(path, {"kind": kind, "result": result, "provenance": provenance(command)})
 
 
+def write_check_and_table(out: str, kind: str, result: dict, text: str) -> list[Path]:
+    """``STEM.md`` (``text``), then ``STEM.json`` (the check file; last, since a suite counts the check
+    done when it exists), STEM being ``out`` without a ``.json`` suffix."""
+    stem = Path(out.removesuffix(".json"))
+    return [
+        atomic_write_text(stem.with_suffix(".md"), text),
+        write_check(stem.with_suffix(".json"), kind, result, harness_command()),
+    ]
+
+
 def read_metrics(path: Path) -> list[dict]:
     """Rows of metrics.jsonl; a torn last line (a kill during its write) is dropped."""
     if not path.exists():

@@ -603,3 +603,45 @@ def test_a_swap_cut_short_is_finished_by_the_next_report(tmp_path):
     staged.mkdir()
     (staged / "a.md").write_text("half")
     assert "discarded" in swap.recover(out) and (out / "a.md").read_text() == "new a.md" and not staged.exists()
+
+
+_KILLED_IN_THE_SWAP = """
+import os, signal, sys
+from pathlib import Path
+from harness.report import swap
+out = Path(sys.argv[1])
+staged = swap.stage(out)
+for name in ("a.md", "b.csv", "c.png"):
+    (staged / name).write_text("new " + name)
+real, calls = os.replace, []
+def replace_then_die(src, dst):
+    real(src, dst)
+    calls.append(dst)
+    if len(calls) == 3:  # the journal, a.md, b.csv: then SIGKILL, which no handler sees
+        os.kill(os.getpid(), signal.SIGKILL)
+os.replace = replace_then_die
+swap.commit(out)
+"""
+
+
+def test_a_report_killed_inside_its_swap_is_made_whole_by_the_next(tmp_path):
+    """A real SIGKILL between two moves of the swap (no signal handler runs): the folder then holds a
+    mix, the journal names the rest, and the next report's recovery leaves the new set alone."""
+    import signal
+
+    from harness.report import swap
+
+    out = tmp_path / "report"
+    out.mkdir()
+    for name in ("a.md", "b.csv", "c.png", "gone.png"):
+        (out / name).write_text("old " + name)
+    (out / swap.SET).write_text(json.dumps(["a.md", "b.csv", "c.png", "gone.png"]))
+    proc = subprocess.run([sys.executable, "-c", _KILLED_IN_THE_SWAP, str(out)], capture_output=True, text=True)
+    assert proc.returncode == -signal.SIGKILL, proc.stderr[-2000:]
+    files = {p.name: p.read_text() for p in out.iterdir() if p.is_file() and not p.name.startswith(".")}
+    assert files["a.md"] == "new a.md" and files["c.png"] == "old c.png"  # killed mid-swap: a mix
+    assert list(out.glob(f"{swap.JOURNAL}*.json"))
+    assert "finished the swap" in swap.recover(out)
+    files = {p.name: p.read_text() for p in out.iterdir() if p.is_file() and not p.name.startswith(".")}
+    assert files == {"a.md": "new a.md", "b.csv": "new b.csv", "c.png": "new c.png"}
+    assert not list(out.glob(f"{swap.JOURNAL}*")) and not list(out.glob(f"{swap.STAGE}*"))

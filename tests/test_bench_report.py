@@ -903,9 +903,10 @@ def test_readmes_result_tables_are_the_ones_the_results_make(tmp_path):
     copy = tmp_path / "repo"
     for folder in ("results/bench/protocol", "results/bench/standard"):
         (copy / folder).mkdir(parents=True)
-        for name in ("returns.csv", "returns_claims.csv", "returns_locomotion.csv"):
+        for name in ("returns.csv", "returns_claims.csv", "returns_locomotion.csv", "grad_variance_vs_h_growth.csv"):
             if (root / folder / name).is_file():
                 shutil.copy(root / folder / name, copy / folder / name)
+    shutil.copytree(root / "results/bench/standard/checks", copy / "results/bench/standard/checks")
     for evaluation in (root / "results/bench/protocol/runs").glob("go2_*/eval.json"):
         target = copy / evaluation.relative_to(root)
         target.parent.mkdir(parents=True)
@@ -921,4 +922,8 @@ def test_readmes_result_tables_are_the_ones_the_results_make(tmp_path):
     assert update_readme(copy / "README.md", copy) == ["protocol-ant"]
     assert "+12% [" in (copy / "README.md").read_text()
     assert update_readme(copy / "README.md", copy, check=True) == []
-    assert set(BLOCKS) == {"protocol-ant", "protocol-go2", "standard-returns"}
+    growth = copy / "results/bench/standard/grad_variance_vs_h_growth.csv"
+    growth.write_text(growth.read_text().replace(",16.03353702926601,", ",17.0,", 1))  # SHAC's raw variance
+    assert update_readme(copy / "README.md", copy) == ["grad-variance-growth"]
+    assert "| SHAC | 17x [" in (copy / "README.md").read_text()
+    assert set(BLOCKS) == {"protocol-ant", "protocol-go2", "standard-returns", "parity", "grad-variance-growth"}

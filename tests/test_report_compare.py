@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from harness.formatting import fmt
 from harness.report.compare import AGGREGATED, GROUP, STATISTICS, summarize, write_report
-from harness.report.formatting import fmt
 
 EVAL_FINALS = {"shac": [1.0, 2.0, 3.0, 4.0, 100.0], "sapo": [7.0]}
 

@@ -106,9 +106,10 @@ def test_the_harness_has_no_import_circle():
 
 
 #: harness/'s wings, each importing only its own and those after it: the command line drives the suite,
-#: the suite runs checks and writes reports, checks and reports read runs, and everything stands on the
-#: core modules (results, bounds, words, envs, progress, resources) at the package's top.
-WINGS = ("cli", "suite", "checks", "report", "run", "core")
+#: the suite writes reports, a report sums up checks (each kind's summary) and runs, checks read runs,
+#: and everything stands on the core modules (results, bounds, words, formatting, figures, envs, inputs,
+#: progress, resources) at the package's top.
+WINGS = ("cli", "suite", "report", "checks", "run", "core")
 #: top-level modules that sit above every wing: the entry point and the two public APIs for other packages
 ABOVE_THE_WINGS = {"harness.__main__", "harness.contract_suite", "harness.diffenv"}
 
@@ -217,14 +218,14 @@ def test_every_hyperparameter_flag_documents_itself():
 
 def test_every_flag_is_declared_once():
     """No verb declares a flag of its own that FLAGS already defines (one type per flag; its help is
-    FLAGS', or what the flag means in that verb from VERB_HELP, the one other place)."""
-    from harness.cli.parser import FLAGS, VERB_HELP
+    FLAGS', or what the flag means in that verb: VERB_HELP's words, or its check kind's registry entry's)."""
+    from harness.cli.parser import FLAGS, flag_help
 
     parser = build_parser()
     for verb, sub in parser._subparsers._group_actions[0].choices.items():
         for action in sub._actions:
             if action.dest in FLAGS:
-                expected = VERB_HELP.get(verb, {}).get(action.dest, FLAGS[action.dest]["help"])
+                expected = flag_help(verb).get(action.dest, FLAGS[action.dest]["help"])
                 assert action.help.startswith(expected), (verb, action.dest)
 
 
@@ -297,3 +298,36 @@ def test_provenance_says_which_machine_and_threads():
     machine = provenance("x")["machine"]
     assert machine["cpu_model"] and machine["torch_num_threads"] >= 1
     assert {"OMP_NUM_THREADS", "torch_num_interop_threads", "cpu_count"} <= set(machine)
+
+
+def test_every_check_kind_is_declared_once_and_the_cli_and_the_report_come_from_it():
+    """A check kind's registry entry is its verb (flags, defaults, the function that runs it) and its line
+    in the suite's checks table: the parser, the verbs and the report read it, nothing repeats it."""
+    import importlib
+
+    from harness.checks.kinds import BY_FILE_KIND, KINDS
+    from harness.cli import VERBS
+    from harness.results import CHECK_RESULT_KINDS
+
+    choices = build_parser()._subparsers._group_actions[0].choices
+    for name, kind in KINDS.items():
+        module = importlib.import_module(f"harness.checks.{kind.module}")
+        assert callable(module.verb) and callable(module.summary), name
+        assert VERBS[name] == kind.run, name
+        flags = {a.dest for a in choices[name]._actions}
+        assert set(kind.flags) <= flags, name
+        for dest, default in kind.defaults.items():
+            assert choices[name].get_default(dest) == default, (name, dest)
+        assert set(kind.required) <= set(kind.flags), name
+    assert set(BY_FILE_KIND) <= set(CHECK_RESULT_KINDS)
+    assert set(CHECK_RESULT_KINDS) - set(BY_FILE_KIND) == {"grad-growth"}  # not a suite check: no summary line
+
+
+def test_every_markdown_table_goes_through_one_writer():
+    """No module writes a Markdown table's separator row itself: :func:`harness.formatting.markdown_table`
+    writes every table, so a cell's ``|`` never splits a row anywhere."""
+    writer = ROOT / "harness" / "formatting.py"
+    for package in ("harness", "backends", "benchmarks"):
+        for path in _modules(package):
+            if path != writer:
+                assert "|---" not in path.read_text() and "---|" not in path.read_text(), path.relative_to(ROOT)

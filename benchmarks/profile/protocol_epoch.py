@@ -38,6 +38,8 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
+from harness.formatting import markdown_table
+
 HERE = Path(__file__).resolve()
 ROOT = HERE.parents[2]
 
@@ -200,11 +202,9 @@ def table(result: dict) -> str:
         f"{result['algo']} at {result['commit']}: median epoch {s['median_wall_s']:.3f} s over "
         f"{len(s['walls'])} epochs",
         "",
-        "| part of the epoch | s (median) | share |",
-        "|---|---|---|",
     ]
-    for name, value in s["parts"].items():
-        lines.append(f"| {name} | {value:.4f} | {100 * value / s['median_wall_s']:.1f}% |")
+    rows = [[name, f"{v:.4f}", f"{100 * v / s['median_wall_s']:.1f}%"] for name, v in s["parts"].items()]
+    lines += markdown_table(["part of the epoch", "s (median)", "share"], rows)
     return "\n".join(lines)
 
 
@@ -281,9 +281,8 @@ def comparison_table(report: dict) -> str:
             f"{r['q3_s']:.3f}] over {r['epochs_measured']} epochs"
         )
     lines.append(f"change {100 * report['change']:+.1f}%; identical metrics: {report['identical_metrics']}")
-    lines += ["", "| part of the epoch | old s | new s |", "|---|---|---|"]
-    for name in PARTS:
-        lines.append(f"| {name} | {report['old']['parts'][name]:.4f} | {report['new']['parts'][name]:.4f} |")
+    rows = [[name, f"{report['old']['parts'][name]:.4f}", f"{report['new']['parts'][name]:.4f}"] for name in PARTS]
+    lines += ["", *markdown_table(["part of the epoch", "old s", "new s"], rows)]
     return "\n".join(lines)
 
 

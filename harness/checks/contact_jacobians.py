@@ -60,6 +60,7 @@ import torch
 from backends.contract import BackendError
 from backends.mujoco_warp.reference import accurate_model, classify_step
 from harness.envs import make_sim
+from harness.formatting import markdown_table
 
 #: Newton's finite-difference step sizes (float32: round-off grows as the step shrinks)
 NEWTON_EPS = (1e-2, 3e-3, 1e-3, 3e-4, 1e-4)
@@ -427,23 +428,28 @@ def contact_jacobians(
 
 def table(result: dict) -> str:
     """Markdown: the summary and the per-class rows."""
-    head = "| states | n | median rel. error | median cosine | within 5% | within 20% |\n|---|---|---|---|---|---|"
-    lines = [f"{result['task']} on {result['backend']}: reference {result['reference']}", "", head]
+    lines = [f"{result['task']} on {result['backend']}: reference {result['reference']}", ""]
 
     def row(label, s):
         if not s["states"]:
-            return f"| {label} | 0 | | | | |"
-        return (
-            f"| {label} | {s['states']} | {s['median_rel_error']:.3g} | {s['median_cosine']:.4f} | "
-            f"{s['within_5pct']:.0%} | {s['within_20pct']:.0%} |"
-        )
+            return [label, "0", "", "", "", ""]
+        return [
+            label,
+            str(s["states"]),
+            f"{s['median_rel_error']:.3g}",
+            f"{s['median_cosine']:.4f}",
+            f"{s['within_5pct']:.0%}",
+            f"{s['within_20pct']:.0%}",
+        ]
 
-    lines.append(row("all in contact", result["all"]))
-    lines += [row(f"from {name}", s) for name, s in result.get("by_source", {}).items()]
-    lines += [row(name, s) for name, s in result["by_class"].items()]
-    lines.append(row("control: the same states lifted clear of the ground", result["control_lifted"]))
+    rows = [row("all in contact", result["all"])]
+    rows += [row(f"from {name}", s) for name, s in result.get("by_source", {}).items()]
+    rows += [row(name, s) for name, s in result["by_class"].items()]
+    rows.append(row("control: the same states lifted clear of the ground", result["control_lifted"]))
     if result.get("control_no_contact_damping"):
-        lines.append(row("control: the same states, contact damping off", result["control_no_contact_damping"]))
+        rows.append(row("control: the same states, contact damping off", result["control_no_contact_damping"]))
+    header = ["states", "n", "median rel. error", "median cosine", "within 5%", "within 20%"]
+    lines += markdown_table(header, rows)
     a = result["all"]
     if "median_state_gain" in a:
 
@@ -466,3 +472,50 @@ def table(result: dict) -> str:
             f"error of the tape against each step size: {per_eps}.",
         ]
     return "\n".join(lines) + "\n"
+
+
+# -- the verb and its line in the suite's checks table ---------------------------------------------
+
+
+def verb(args) -> int:
+    """``python -m harness contact-jacobians``: per-step Jacobians in contact against a reference."""
+    from harness.inputs import BadInput, preflight
+    from harness.results import write_check_and_table
+
+    memory = (args.num_envs, 1)
+    preflight(
+        backends=args.backend, task=args.task, device=args.device, preset=args.preset, out=args.out, memory=memory
+    )
+    try:
+        result = contact_jacobians(
+            args.task,
+            args.backend,
+            device=args.device,
+            states=args.states,
+            num_envs=args.num_envs,
+            stride=args.stride,
+            policy_epochs=args.policy_epochs,
+            seed=args.seed,
+            preset=args.preset,
+            options=dict(args.backend_option or []),
+            progress=lambda line: print(line, flush=True),
+        )
+    except (ValueError, BackendError) as exc:  # a task or an option the adapter cannot take
+        raise BadInput(str(exc)) from None
+    text = table(result)
+    print(text)
+    if args.out:
+        for path in write_check_and_table(args.out, "contact-jacobians", result, text):
+            print(f"wrote {path}")
+    return 0
+
+
+def summary(result: dict, kind: str) -> str:
+    from harness.formatting import fmt, fmt_pct
+
+    a, c = result.get("all", {}), result.get("control_lifted", {})
+    return (
+        f"Jacobians at {a.get('states')} states in contact: median rel. error {fmt(a.get('median_rel_error'))}, "
+        f"{fmt_pct(a.get('within_20pct'))} within 20%; lifted control {fmt(c.get('median_rel_error'))}"
+        + (f"; median state gain {fmt(a['median_state_gain'])}" if "median_state_gain" in a else "")
+    )

@@ -145,3 +145,59 @@ def forward_crosscheck(
             "com_abs_difference_max_xyz": axes.tolist(),
         }
     return report
+
+
+# -- the verb and its line in the suite's checks table ---------------------------------------------
+
+
+def verb(args) -> int:
+    """``python -m harness crosscheck``: gradients (soft bodies: forward paths) of two or more engines."""
+    import json
+
+    from harness.inputs import BadInput, preflight
+    from harness.results import write_check
+    from tasks import task_class
+
+    if len(set(args.backends)) < 2 or len(set(args.backends)) != len(args.backends):
+        raise BadInput(f"--backends needs two or more different backends to compare, got {' '.join(args.backends)}")
+    preflight(backends=args.backends, task=args.task, out=args.out, memory=(args.num_envs, args.steps))
+    if task_class(args.task).layout.num_particles:  # soft bodies: forward rollouts (module docstring)
+        kind = "forward-crosscheck"
+        report = forward_crosscheck(args.task, args.backends, num_envs=args.num_envs, steps=args.steps, seed=args.seed)
+        print(json.dumps(report["pairs"], indent=2))
+    else:
+        kind = "crosscheck"
+        report = crosscheck(args.task, args.backends, num_envs=args.num_envs, steps=args.steps, seed=args.seed)
+        print(json.dumps(report["segments"], indent=2))
+    if args.out:
+        print(f"wrote {write_check(args.out, kind, report)}")
+    return 0
+
+
+def _extremes(pairs: dict, low: str, high: str) -> tuple[float | None, float | None]:
+    """(min of ``low``, max of ``high``) over every comparison nested in ``pairs``."""
+    lows, highs = [], []
+
+    def walk(node):
+        if isinstance(node, dict):
+            if low in node and isinstance(node[low], int | float):
+                lows.append(node[low])
+            if high in node and isinstance(node[high], int | float):
+                highs.append(node[high])
+            for value in node.values():
+                walk(value)
+
+    walk(pairs)
+    return (min(lows) if lows else None), (max(highs) if highs else None)
+
+
+def summary(result: dict, kind: str) -> str:
+    """Gradient agreement (cosine, relative difference); a soft body's file: the forward paths' gap."""
+    from harness.formatting import fmt
+
+    if kind == "forward-crosscheck":
+        _, gap = _extremes(result["pairs"], "", "com_distance_max")
+        steps = result.get("steps")
+        return f"forward rollouts across backends: max centre-of-mass distance {fmt(gap)} m, {steps} steps"
+    cosine, rel_diff = _extremes(result.get("segments", {}), "cosine", "rel_diff")
+    return f"gradients across backends: min cosine {fmt(cosine)}, max rel. difference {fmt(rel_diff)}"

@@ -31,6 +31,7 @@ best of ``windows`` after a warm-up) for ``timing_envs`` envs on the ground, and
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -39,6 +40,7 @@ import torch
 from backends import make
 from backends.mujoco_warp.adapter import fd_settings
 from backends.mujoco_warp.reference import accurate_model, classify_step, float64_step_jacobians
+from harness.formatting import markdown_table
 from tasks import make_task
 
 #: the adapter options of each measured row (the control step stays at the adapter's default)
@@ -284,12 +286,17 @@ def fd_schemes(
     }
 
 
-def _steps_cells(r: dict) -> str:
+def _steps_cells(r: dict) -> list[str]:
+    if r["fd_scheme"] == "adjoint":  # the analytic gradients' row: no step sizes
+        return ["-"] * 5
     tolerance = "model's" if r["fd_tolerance"] is None else f"{r['fd_tolerance']:g}"
-    return (
-        f"| {r['fd_eps_state']:g} | {r['fd_eps_velocity']:g} | {r['fd_eps_control']:g} | {r['fd_warmstart']} "
-        f"| {tolerance} "
-    )
+    return [
+        f"{r['fd_eps_state']:g}",
+        f"{r['fd_eps_velocity']:g}",
+        f"{r['fd_eps_control']:g}",
+        str(r["fd_warmstart"]),
+        tolerance,
+    ]
 
 
 def markdown(report: dict, command: str) -> str:
@@ -308,22 +315,86 @@ def markdown(report: dict, command: str) -> str:
         "and the median over the states whose friction sticks with no contact made or broken. "
         f"Cost: one control step with gradients on the ground, best of {report['windows']}.",
         "",
-        "| scheme | position step | velocity step | control step | warm start | tolerance | worlds/env "
-        "| contact-free max "
-        "| in contact: median | within 5% | by column: position / velocity / control "
-        "| gain over 2x the reference's (max ratio) "
-        "| friction sticking: median | s per step | env-steps/s with grad |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for r in report["rows"]:
-        steps = "| - | - | - | - | - " if r["fd_scheme"] == "adjoint" else _steps_cells(r)
-        lines.append(
-            f"| {r['fd_scheme']} {steps}| {r['worlds_per_env']:.4g} | {r['contact_free_error_max']:.1e} "
-            f"| {r['contact_error_median']:.2g} ({r['contact_states']}) | {r['contact_within_5pct']:.0%} "
-            f"| {' / '.join(f'{v:.2g}' for v in r['contact_error_median_by_kind'].values())} "
-            f"| {r['contact_spurious_gain_share']:.0%} ({r['contact_gain_ratio_max']:.3g}) "
-            f"| {r['sticking_error_median']:.2g} ({r['sticking_states']}) "
-            f"| {r['seconds_per_step_with_grad']:.2f} ({r['timing_envs']} envs) "
-            f"| {r['env_steps_per_s_with_grad']:.1f} |"
-        )
+    header = ["scheme", "position step", "velocity step", "control step", "warm start", "tolerance", "worlds/env"]
+    header += ["contact-free max", "in contact: median", "within 5%", "by column: position / velocity / control"]
+    header += ["gain over 2x the reference's (max ratio)", "friction sticking: median", "s per step"]
+    header += ["env-steps/s with grad"]
+    rows = [
+        [
+            r["fd_scheme"],
+            *_steps_cells(r),
+            f"{r['worlds_per_env']:.4g}",
+            f"{r['contact_free_error_max']:.1e}",
+            f"{r['contact_error_median']:.2g} ({r['contact_states']})",
+            f"{r['contact_within_5pct']:.0%}",
+            " / ".join(f"{v:.2g}" for v in r["contact_error_median_by_kind"].values()),
+            f"{r['contact_spurious_gain_share']:.0%} ({r['contact_gain_ratio_max']:.3g})",
+            f"{r['sticking_error_median']:.2g} ({r['sticking_states']})",
+            f"{r['seconds_per_step_with_grad']:.2f} ({r['timing_envs']} envs)",
+            f"{r['env_steps_per_s_with_grad']:.1f}",
+        ]
+        for r in report["rows"]
+    ]
+    lines += markdown_table(header, rows)
     return "\n".join(lines) + "\n"
+
+
+# -- the verb and its line in the suite's checks table ---------------------------------------------
+
+
+def verb(args) -> int:
+    """``python -m harness fd-schemes``: MuJoCo-Warp's gradient settings, accuracy against cost."""
+    from backends.contract import BackendError
+    from backends.mujoco_warp.adapter import FD_SCHEMES
+    from harness.inputs import BadInput, out_stem, preflight, validate_names
+    from harness.results import atomic_write_text, harness_command, write_check
+    from tasks import task_class
+
+    validate_names("mujoco_warp", args.task)
+    if task_class(args.task).layout.num_particles:
+        raise BadInput("fd-schemes compares schemes on articulated tasks (ant, go2); soft bodies have no C reference")
+    if args.contact_states % args.num_envs:
+        raise BadInput(
+            f"--contact-states {args.contact_states} is not a multiple of --num-envs {args.num_envs}: "
+            "the states are compared in batches of the envs"
+        )
+    choices = (*FD_SCHEMES, "adjoint")  # "adjoint": the analytic gradients' row
+    unknown = sorted(set(args.schemes or ()) - set(choices))
+    if unknown:
+        raise BadInput(f"--schemes: unknown scheme {unknown[0]!r}; choose from {', '.join(choices)}")
+    prefix = out_stem(args.out) if args.out else None  # PREFIX or PREFIX.json: both files
+    memory = (max(args.num_envs, args.timing_envs), 1)
+    preflight(backends="mujoco_warp", task=args.task, out=prefix and prefix + ".json", memory=memory)
+    print(f"fd-schemes mujoco_warp/{args.task}: accuracy on {args.num_envs} envs, cost at {args.timing_envs} envs")
+    try:
+        report = fd_schemes(
+            args.task,
+            num_envs=args.num_envs,
+            timing_envs=args.timing_envs,
+            windows=args.windows,
+            seed=args.seed,
+            settle=args.settle,
+            contact_states=args.contact_states,
+            schemes=tuple(args.schemes) if args.schemes else None,
+        )
+    except BackendError as exc:  # a task MuJoCo-Warp cannot build
+        raise BadInput(f"fd-schemes on {args.task}: {exc}") from None
+    if prefix:  # the JSON last: a suite counts the check done when it exists
+        print(f"wrote {atomic_write_text(prefix + '.md', markdown(report, harness_command()))}")
+        print(f"wrote {write_check(prefix + '.json', 'fd-schemes', report)}")
+    return 0
+
+
+def summary(result: dict, kind: str) -> str:
+    from harness.formatting import fmt
+
+    rows = result.get("rows", [])
+    best = min(rows, key=lambda row: row.get("contact_error_median", math.inf), default=None)
+    if best is None:
+        return "no setting measured"
+    return (
+        f"{len(rows)} settings; most accurate in contact: {best.get('fd_scheme')}, position step "
+        f"{best.get('fd_eps_state')}, velocity step {best.get('fd_eps_velocity')}, median error "
+        f"{fmt(best.get('contact_error_median'))}"
+    )

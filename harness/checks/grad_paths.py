@@ -26,6 +26,8 @@ import math
 
 import torch
 
+from harness.formatting import markdown_table
+
 #: (label, feedback, bootstrap)
 VARIANTS = (
     ("as in training", True, True),
@@ -134,12 +136,66 @@ def table(result: dict) -> str:
         f"{result['algo']} on {result['task']} ({result['preset']}), {result['backend']}: {result['num_envs']} envs, "
         f"h {result['horizon']}, {result['epochs']} epochs, seed {result['seed']}; unclipped actor-gradient norms",
         "",
-        "| gradient paths | median norm | max norm | epochs above the skip threshold | median ratio to training |",
-        "|---|---|---|---|---|",
     ]
-    for label, s in result["summary"].items():
-        lines.append(
-            f"| {label} | {s['median_norm']:.3g} | {s['max_norm']:.3g} | {s['above_skip_threshold']} of "
-            f"{result['epochs']} | {s['median_ratio_to_training']:.3g} |"
-        )
+    lines += markdown_table(
+        ["gradient paths", "median norm", "max norm", "epochs above the skip threshold", "median ratio to training"],
+        [
+            [
+                label,
+                f"{s['median_norm']:.3g}",
+                f"{s['max_norm']:.3g}",
+                f"{s['above_skip_threshold']} of {result['epochs']}",
+                f"{s['median_ratio_to_training']:.3g}",
+            ]
+            for label, s in result["summary"].items()
+        ],
+    )
     return "\n".join(lines) + "\n"
+
+
+# -- the verb and its line in the suite's checks table ---------------------------------------------
+
+
+def verb(args) -> int:
+    """``python -m harness grad-paths``: actor-gradient norms with each gradient path switched off."""
+    from algorithms.config import ALGORITHMS
+    from harness.inputs import BadInput, preflight
+    from harness.results import write_check_and_table
+
+    if args.algo not in ALGORITHMS:
+        raise BadInput(f"unknown algorithm {args.algo!r}; choose from: {', '.join(ALGORITHMS)}")
+    memory = (args.num_envs, args.horizon)
+    preflight(
+        backends=args.backend, task=args.task, device=args.device, preset=args.preset, out=args.out, memory=memory
+    )
+    print(f"grad-paths {args.algo} on {args.backend}/{args.task}: {args.epochs} epochs, four rollouts of each window")
+    try:
+        result = grad_paths(
+            args.task,
+            args.backend,
+            algo_name=args.algo,
+            epochs=args.epochs,
+            num_envs=args.num_envs,
+            horizon=args.horizon,
+            seed=args.seed,
+            preset=args.preset,
+            device=args.device,
+            options=dict(args.backend_option or []),
+            progress=lambda line: print(line, flush=True),
+        )
+    except ValueError as exc:  # an invalid configuration or adapter option, refused before any work
+        raise BadInput(str(exc)) from None
+    text = table(result)
+    print(text)
+    if args.out:
+        for path in write_check_and_table(args.out, "grad-paths", result, text):
+            print(f"wrote {path}")
+    return 0
+
+
+def summary(result: dict, kind: str) -> str:
+    from harness.formatting import fmt
+
+    s = result.get("summary", {})
+    parts = [f"{label} {fmt(v.get('median_norm'))} ({v.get('above_skip_threshold')} skipped)" for label, v in s.items()]
+    return f"{result.get('algo')} actor-gradient norms, median over {result.get('epochs')} epochs: " + ", ".join(parts)

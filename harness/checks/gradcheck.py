@@ -215,3 +215,69 @@ def gradcheck(
         action_mode=action_mode,
         state_mode=state_mode,
     )
+
+
+# -- the verb and its line in the suite's checks table ---------------------------------------------
+
+
+def verb(args) -> int:
+    """``python -m harness gradcheck``: one segment's gradients against central differences, PASS/FAIL."""
+    from harness.inputs import BadInput, make_verb_sim, preflight, sim_physics
+    from harness.results import harness_command, write_check
+
+    preflight(
+        backends=args.backend, task=args.task, device=args.device, out=args.out, memory=(args.num_envs, args.steps)
+    )
+    sim = make_verb_sim(args, horizon=args.steps)
+    tolerance = args.tolerance or DEFAULT_TOLERANCE
+    start_height = None
+    lifted = "root" if sim.layout.floating_base else "lowest particle" if sim.layout.num_particles else None
+    if not args.with_contact and lifted:
+        start_height = sim.task.airborne_height  # high enough that `steps` of free fall never reach the ground
+    segment = "with contact" if start_height is None else f"contact-free ({lifted} lifted to {start_height} m)"
+    if args.settle:
+        if start_height is not None:
+            raise BadInput("--settle needs --with-contact (settling in the air would only fall)")
+        segment += f", after {args.settle} zero-action steps"
+    print(f"gradcheck {args.backend}/{args.task}: {args.num_envs} envs, {args.steps} steps, {segment}", flush=True)
+    result = gradcheck(sim, steps=args.steps, seed=args.seed, start_height=start_height, settle_steps=args.settle)
+    for label, error, mode in (
+        ("d loss / d actions:      ", result.action_rel_error, result.action_mode),
+        ("d loss / d initial state:", result.state_rel_error, result.state_mode),
+    ):
+        print(f"  {label}  max relative error {error:.3e} (central differences per {mode[:-1]})")
+    ok = result.max_rel_error <= tolerance
+    print(f"max relative error {result.max_rel_error:.3e} (tolerance {tolerance:.1e}): {'PASS' if ok else 'FAIL'}")
+    if args.out:
+        summary = {
+            "backend": args.backend,
+            "task": args.task,
+            "num_envs": args.num_envs,
+            "steps": args.steps,
+            "segment": segment,
+            "action_rel_error": result.action_rel_error,
+            "state_rel_error": result.state_rel_error,
+            "max_rel_error": result.max_rel_error,
+            "tolerance": tolerance,
+            "passed": ok,
+            **sim_physics(sim),
+        }
+        print(f"wrote {write_check(args.out, 'gradcheck', summary, harness_command())}")
+    return 0 if ok else 1
+
+
+_SUMMARY_FIELDS = (
+    ("tolerance", "tolerance"),
+    ("action_rel_error", "actions"),
+    ("state_rel_error", "initial state"),
+    ("steps", "steps"),
+    ("segment", "segment"),
+)
+
+
+def summary(result: dict, kind: str) -> str:
+    from harness.formatting import fmt
+
+    parts = [f"max rel. error {fmt(result.get('max_rel_error'))}"]
+    parts += [f"{label} {fmt(result[key])}" for key, label in _SUMMARY_FIELDS if result.get(key) is not None]
+    return ", ".join(parts)

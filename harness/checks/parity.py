@@ -32,6 +32,7 @@ from pathlib import Path
 import torch
 
 from harness.envs import make_sim
+from harness.formatting import markdown_table
 from simcore import ControlKind, StateLayout
 
 TARGETS = {"settle_height_m": 0.01, "settle_joint_rad": 0.02, "probe_rel": 0.10, "episode_length_rel": 0.20}
@@ -250,12 +251,11 @@ def table(result: dict) -> str:
     lines = [
         f"Parity of `{result['task']}` (preset `{result['preset']}`): {vs}",
         "",
-        f"| measurement | {' | '.join(names)} | {gap_head} | target | holds |",
-        "|---" * (len(names) + 4) + "|",
     ]
+    cells: list[list[str]] = []
 
     def row(name, values, gap, target, holds):
-        lines.append(f"| {name} | {' | '.join(values)} | {gap} | {target} | {'yes' if holds else 'no'} |")
+        cells.append([name, *values, gap, target, "yes" if holds else "no"])
 
     gaps, holds, targets = result["gaps"], result["holds"], result["targets"]
     blank = [""] * len(names)
@@ -301,6 +301,7 @@ def table(result: dict) -> str:
                 gap = f"{loop['root_pos_rms_m'][step - 1]:.4f} m / {loop['joint_rms_rad'][step - 1]:.4f} rad"
                 label = "" if len(names) == 2 else f" ({other})"
                 row(f"open loop, step {step}: RMS root / joint gap{label}", blank, gap, "measured", True)
+    lines += markdown_table(["measurement", *names, gap_head, "target", "holds"], cells)
     s = result["settings"]
     lines += [
         "",
@@ -312,7 +313,7 @@ def table(result: dict) -> str:
 
 def plot(result: dict, path: Path) -> Path:
     """Settle paths, open-loop divergence and first-episode lengths, the backends side by side."""
-    from harness.report.plots import pyplot, save_figure
+    from harness.figures import pyplot, save_figure
 
     plt, _ = pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(15, 4))
@@ -333,3 +334,53 @@ def plot(result: dict, path: Path) -> Path:
         ax.legend()
     fig.suptitle(f"{result['task']} ({result['preset']}): {' vs '.join(result['backends'])}")
     return save_figure(fig, path)
+
+
+# -- the verb and its line in the suite's checks table ---------------------------------------------
+
+
+def verb(args) -> int:
+    """``python -m harness parity``: the same task on two or more engines, measured side by side."""
+    from harness.envs import engines_for
+    from harness.inputs import BadInput, out_stem, preflight
+    from harness.results import write_check_and_table
+
+    if args.backends is None:  # the two first installed engines that drive the task
+        preflight(task=args.task)
+        args.backends = engines_for(args.task)[:2]
+    if len(set(args.backends)) < 2:
+        raise BadInput(f"parity compares two different backends, got {' '.join(args.backends)}")
+    preflight(backends=args.backends, task=args.task, preset=args.preset, out=args.out, memory=(args.num_envs, 0))
+    try:
+        result = parity(
+            args.task,
+            args.backends,
+            preset=args.preset,
+            num_envs=args.num_envs,
+            seeds=args.episode_seeds,
+            steps=args.steps,
+            max_steps=args.max_steps,
+            seed=args.seed,
+            progress=lambda line: print(line, flush=True),
+        )
+    except ValueError as exc:
+        raise BadInput(str(exc)) from None
+    text = table(result)
+    print(text)
+    print(f"targets {'all hold' if result['passed'] else 'not all hold'}: {result['holds']}")
+    if args.out:
+        print(f"wrote {plot(result, Path(out_stem(args.out)).with_suffix('.png'))}")
+        for path in write_check_and_table(args.out, "parity", result, text):
+            print(f"wrote {path}")
+    return 0
+
+
+def summary(result: dict, kind: str) -> str:
+    from harness.formatting import fmt
+
+    g = result.get("gaps", {})
+    return (
+        f"engines: settle height gap {fmt(g.get('settle_height_m'))} m, joint gap "
+        f"{fmt(g.get('settle_joint_rad'))} rad, first-episode length gap {fmt(g.get('episode_length_rel'))} "
+        "(relative)"
+    )

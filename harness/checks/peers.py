@@ -65,3 +65,34 @@ def run_peer(peer: str, task: str, args: list[str], python: str | None = None) -
     result["peer_command"] = result.pop("command", None)
     result["peer_packages"] = result.pop("packages", None)
     return result
+
+
+# -- the verb and its line in the suite's checks table ---------------------------------------------
+
+
+def verb(args) -> int:
+    """``python -m harness peer``: the peer's own script in its own environment, its result written."""
+    from harness.inputs import BadInput, check_output
+    from harness.results import write_check
+
+    if args.peer not in PEERS:
+        raise BadInput(f"unknown peer {args.peer!r}; choose from: {', '.join(PEERS)}")
+    if args.task not in PEER_TASKS[args.peer]:
+        raise BadInput(f"{args.peer} has the tasks {', '.join(PEER_TASKS[args.peer])}, not {args.task!r}")
+    check_output(args.out)
+    words = ["--num-envs", str(args.num_envs), "--horizon", str(args.horizon), "--windows", str(args.windows)]
+    try:
+        result = run_peer(args.peer, args.task, words + list(args.peer_arg), python=args.python)
+    except PeerUnavailable as exc:
+        raise BadInput(str(exc)) from None
+    print(f"wrote {write_check(args.out, 'peer', result)}")
+    return 0
+
+
+def summary(result: dict, kind: str) -> str:
+    from harness.formatting import fmt
+
+    return (
+        f"{result.get('peer')}: {fmt(result.get('forward_steps_per_s'))} env-steps/s forward, "
+        f"{fmt(result.get('forward_backward_steps_per_s'))} with gradients"
+    )

@@ -18,8 +18,11 @@ import io
 import time
 from pathlib import Path
 
+import pandas as pd
+
 from harness.checks.throughput import forward_rate, measure
 from harness.envs import make_sim
+from harness.figures import NoPlotData, pyplot, save_figure
 from harness.results import atomic_write_text
 from tasks import make_task
 
@@ -105,9 +108,7 @@ def read_csv(path: str | Path) -> list[dict]:
 
 
 def plot(csv_paths: list[str | Path], out_png: str | Path, title: str = "") -> Path:
-    """The log-log plot (:func:`harness.report.plots.plot_scaling`) of the rows of one or more CSVs."""
-    from harness.report.plots import plot_scaling
-
+    """The log-log plot (:func:`plot_scaling`) of the rows of one or more CSVs."""
     return plot_scaling([row for path in csv_paths for row in read_csv(path)], Path(out_png), title)
 
 
@@ -116,3 +117,93 @@ def write(rows: list[dict], out_prefix: str | Path, command: str, provenance: di
     csv_path = atomic_write_text(out_prefix.with_suffix(".csv"), to_csv(rows, command, provenance))
     png = plot([csv_path], out_prefix.with_suffix(".png"), title=f"{rows[0]['backend']} / {rows[0]['task']}")
     return [csv_path, png]
+
+
+SCALING_PASSES = (("forward_steps_per_s", "forward"), ("forward_backward_steps_per_s", "forward+backward"))
+
+
+def plot_scaling(rows: list[dict], path: Path, title: str = "") -> Path:
+    """Log-log env-steps/s against the number of envs (``scaling`` rows, :mod:`harness.checks.scaling`): one colour
+    per backend x task, solid forward, dashed with gradients; counts without a rate (skipped) are left out."""
+    points = [
+        {
+            "num envs": row["num_envs"],
+            "env-steps/s": float(row[key]),
+            "backend / task": f"{row['backend']} / {row['task']}",
+            "pass": label,
+        }
+        for row in rows
+        for key, label in SCALING_PASSES
+        if row.get(key)
+    ]
+    if not points:
+        raise NoPlotData("no scaling check")
+    plt, sns = pyplot()
+    fig, ax = plt.subplots(figsize=(10, 5.5))
+    sns.lineplot(
+        data=pd.DataFrame(points),
+        x="num envs",
+        y="env-steps/s",
+        hue="backend / task",
+        style="pass",
+        markers=True,
+        ax=ax,
+    )
+    sns.move_legend(ax, "upper left", bbox_to_anchor=(1.01, 1.0))  # beside the axes: inside, it hid curves
+    ax.set_xscale("log", base=2)
+    ax.set_yscale("log")
+    ax.set_title(title or "throughput vs number of envs (scaling checks, log-log)")
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+# -- the verb and its line in the suite's checks table ---------------------------------------------
+
+
+def verb(args) -> int:
+    """``python -m harness scaling``: env-steps/s over env counts, as CSV, plot and check file."""
+    from harness.inputs import BadInput, check_device, check_memory, check_output, out_stem, validate_names
+    from harness.results import harness_command, provenance, write_check
+
+    validate_names(args.backend, args.task)
+    check_device(args.device)
+    if sorted(args.envs) != list(args.envs) or len(set(args.envs)) != len(args.envs):
+        raise BadInput(f"--envs must be distinct and increasing, got {args.envs}")
+    out = out_stem(args.out) if args.out else None  # without --out, as every measuring verb: print, write nothing
+    if out:
+        check_output(out + ".csv")
+    check_memory(
+        args.backend, args.task, args.envs[-1], 0 if args.forward_only else args.horizon, args.device, "--envs"
+    )
+    print(f"scaling {args.backend}/{args.task}: envs {args.envs}, {args.horizon}-step windows, best of {args.windows}")
+    rows = scaling(
+        args.backend,
+        args.task,
+        env_counts=args.envs,
+        horizon=args.horizon,
+        windows=args.windows,
+        device=args.device,
+        seed=args.seed,
+        max_seconds=args.max_seconds,
+        options=dict(args.backend_option or []),
+        forward_only=args.forward_only,
+    )
+    prov = provenance()
+    if not out:
+        print(to_csv(rows, harness_command(), prov), end="")
+        return 0
+    for path in write(rows, out, harness_command(), prov):
+        print(f"wrote {path}")
+    result = {"backend": args.backend, "task": args.task, "rows": rows}
+    print(f"wrote {write_check(out + '.json', 'scaling', result)}")
+    return 0
+
+
+def summary(result: dict, kind: str) -> str:
+    from harness.formatting import fmt
+
+    rows = [row for row in result.get("rows", []) if row.get("forward_backward_steps_per_s")]
+    if not rows:
+        return "no env count measured with gradients"
+    rates = ", ".join(f"{row['num_envs']}: {fmt(row['forward_backward_steps_per_s'])}" for row in rows)
+    return f"env-steps/s with gradients by env count: {rates}"

@@ -212,3 +212,34 @@ def probe_candidate(
         result["gradient_32_step_windows"] = None
     result["seconds"] = round(time.perf_counter() - start, 1)
     return result
+
+
+# -- the verb and its line in the suite's checks table ---------------------------------------------
+
+
+def verb(args) -> int:
+    """``python -m harness solver-probe``: every candidate setting of the task, probed and written."""
+    from harness.inputs import BadInput, preflight
+    from harness.results import harness_command
+
+    preflight(backends=args.backend, task=args.task, out=args.out, memory=(args.num_envs, 0))
+    if args.task not in ("ant", "go2", "soft_jumper"):
+        raise BadInput(f"solver-probe has candidates for the tasks ant, go2 and soft_jumper, not {args.task!r}")
+    run_probe(
+        num_envs=args.num_envs,
+        out=args.out,
+        command=harness_command(),
+        task=args.task,
+        steps=args.max_steps,
+        backend=args.backend,
+    )
+    return 0
+
+
+def summary(result: dict, kind: str) -> str:
+    runs = result.get("runs", [])
+    stable = sum(
+        (run.get("random_actions") or run.get("zero_actions") or {}).get("first_non_finite_step") is None
+        for run in runs
+    )
+    return f"{len(runs)} setting(s) probed, {stable} finite throughout"

@@ -130,3 +130,74 @@ def measure(sim: BatchedSim, horizon: int = 32, windows: int = 5, seed: int = 0,
         bare_engine_steps_per_s=rates["bare"],
         bare_forward_steps_per_s=rates["bare_forward"],
     )
+
+
+# -- the verb and its line in the suite's checks table ---------------------------------------------
+
+
+def verb(args) -> int:
+    """``python -m harness throughput``: forward-only and forward+backward env-steps/s, and the bare engine."""
+    from harness.inputs import make_verb_sim, preflight, sim_physics
+    from harness.results import write_check
+
+    memory = (args.num_envs, 0 if args.grad_cost_only else args.horizon)
+    preflight(backends=args.backend, task=args.task, device=args.device, out=args.out, memory=memory)
+    sim = make_verb_sim(args, horizon=args.horizon)
+    print(
+        f"throughput {args.backend}/{args.task} (preset {sim.task.preset_label}, {sim.integrator}): "
+        f"{args.num_envs} envs, windows of {args.horizon} steps",
+        flush=True,
+    )
+    if args.grad_cost_only:
+        return _grad_cost_only(sim, args)
+    result = measure(sim, horizon=args.horizon, windows=args.windows, seed=args.seed)
+    print(f"  forward only:        {result.forward_steps_per_s:10.0f} env-steps/s")
+    print(f"  forward + backward:  {result.forward_backward_steps_per_s:10.0f} env-steps/s")
+    print(f"  gradient cost:       {result.gradient_cost_factor:10.2f} x a forward-only step")
+    if result.bare_forward_steps_per_s is not None:
+        print(f"  bare engine:         {result.bare_forward_steps_per_s:10.0f} env-steps/s (forward only)")
+        print(f"  adapter / bare time: {result.forward_overhead_ratio:10.3f} (forward only)")
+    if result.bare_engine_steps_per_s is not None:
+        print(f"  bare engine:         {result.bare_engine_steps_per_s:10.0f} env-steps/s (forward + backward)")
+        print(f"  adapter / bare time: {result.overhead_ratio:10.3f} (forward + backward)")
+    if args.out:
+        path = write_check(args.out, "throughput", {**result.as_dict(), **sim_physics(sim)})
+        print(f"wrote {path}")
+    return 0
+
+
+def _grad_cost_only(sim, args) -> int:
+    """``throughput --grad-cost-only WORLDS``: forward windows as usual, the step with gradients estimated."""
+    from harness.inputs import BadInput
+    from harness.results import write_check
+
+    cost = sim.gradient_step_cost(args.grad_cost_only)
+    if cost is None:
+        raise BadInput(f"--grad-cost-only: the {args.backend} adapter has no finite-difference cost to estimate")
+    forward = forward_rate(sim, horizon=args.horizon, windows=args.windows, seed=args.seed)
+    with_grad = args.num_envs / cost["seconds_per_step"]
+    print(f"  forward only:        {forward:10.1f} env-steps/s")
+    print(
+        f"  forward + backward:  {with_grad:10.4f} env-steps/s (estimated: {cost['worlds_per_step']} worlds per step, "
+        f"{cost['sample_worlds']} worlds timed in {cost['sample_seconds']:.1f} s)"
+    )
+    if args.out:
+        result = {
+            "backend": args.backend,
+            "task": args.task,
+            "num_envs": args.num_envs,
+            "horizon": args.horizon,
+            "windows": args.windows,
+            "forward_steps_per_s": forward,
+            "forward_backward_steps_per_s_estimated": with_grad,
+            "gradient_step_cost": cost,
+        }
+        print(f"wrote {write_check(args.out, 'throughput', result)}")
+    return 0
+
+
+def summary(result: dict, kind: str) -> str:
+    from harness.formatting import fmt
+
+    with_grad = result.get("forward_backward_steps_per_s", result.get("forward_backward_steps_per_s_estimated"))
+    return f"{fmt(result.get('forward_steps_per_s'))} env-steps/s forward, {fmt(with_grad)} with gradients"

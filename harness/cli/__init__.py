@@ -1,14 +1,15 @@
 """``python -m harness VERB ...``: the benchmark's command line.
 
 Verbs, by module: :mod:`harness.cli.runs` (``list``, ``train`` and ``train --resume DIR``, ``eval``,
-``report``, ``sweep``, ``bench`` the suite, ``bench-run`` one of its runs, ``landscape``),
-:mod:`harness.cli.diagnostics` (``gradcheck``, ``grad-growth``, ``grad-paths``, ``parity``,
-``contact-jacobians``, ``crosscheck``) and :mod:`harness.cli.performance` (``throughput``,
-``solver-probe``, ``peer``, ``fd-schemes``, ``scaling``, ``scaling-plot``). Every flag is declared once
+``report``, ``sweep``, ``bench`` the suite, ``bench-run`` one of its runs, ``landscape``, ``step-gain``,
+``render``, ``readme``), every check kind the suite runs (``gradcheck``, ``throughput``, ``crosscheck``,
+``parity``, ``contact-jacobians``, ``grad-paths``, ``scaling``, ``fd-schemes``, ``solver-probe``,
+``peer``: flags and verb declared in :mod:`harness.checks.kinds`, the verb beside the check's code) and
+:mod:`harness.cli.other_checks` (``grad-growth``, ``scaling-plot``). Every flag is declared once
 in :data:`harness.cli.parser.FLAGS` (type, default, help) and every hyperparameter flag is generated
 from :class:`algorithms.config.AlgoConfig`, whose field docs are the ``--help`` text. Bad input (an
 unknown backend or task, an invalid number or configuration) prints one ``error:`` line and exits 2
-(:mod:`harness.cli.inputs`).
+(:mod:`harness.inputs`).
 
 Why argparse and not tyro (the CLI library CleanRL uses): tyro reports a bad value in a
 nine-line framed panel (measured with tyro 1.0.17 on ``--critic-iterations 2.5``), which breaks the
@@ -20,24 +21,9 @@ from __future__ import annotations
 
 import sys
 
-from harness.cli.diagnostics import (
-    cmd_contact_jacobians,
-    cmd_crosscheck,
-    cmd_grad_growth,
-    cmd_grad_paths,
-    cmd_gradcheck,
-    cmd_parity,
-)
-from harness.cli.inputs import EXIT_BAD_INPUT, BadInput
+from harness.checks.kinds import KINDS
+from harness.cli.other_checks import cmd_grad_growth, cmd_scaling_plot
 from harness.cli.parser import FLAGS, build_parser
-from harness.cli.performance import (
-    cmd_fd_schemes,
-    cmd_peer,
-    cmd_scaling,
-    cmd_scaling_plot,
-    cmd_solver_probe,
-    cmd_throughput,
-)
 from harness.cli.runs import (
     cmd_bench,
     cmd_bench_run,
@@ -51,33 +37,25 @@ from harness.cli.runs import (
     cmd_sweep,
     cmd_train,
 )
+from harness.inputs import EXIT_BAD_INPUT, BadInput
 
 __all__ = ["FLAGS", "BadInput", "build_parser", "main"]
 
 VERBS = {
-    "scaling-plot": cmd_scaling_plot,
-    "scaling": cmd_scaling,
-    "fd-schemes": cmd_fd_schemes,
     "list": cmd_list,
-    "gradcheck": cmd_gradcheck,
-    "throughput": cmd_throughput,
     "train": cmd_train,
     "eval": cmd_eval,
     "report": cmd_report,
     "sweep": cmd_sweep,
-    "grad-growth": cmd_grad_growth,
-    "grad-paths": cmd_grad_paths,
-    "crosscheck": cmd_crosscheck,
-    "parity": cmd_parity,
-    "contact-jacobians": cmd_contact_jacobians,
-    "solver-probe": cmd_solver_probe,
-    "peer": cmd_peer,
     "bench": cmd_bench,
     "bench-run": cmd_bench_run,
     "readme": cmd_readme,
     "landscape": cmd_landscape,
     "step-gain": cmd_step_gain,
     "render": cmd_render,
+    "grad-growth": cmd_grad_growth,
+    "scaling-plot": cmd_scaling_plot,
+    **{name: kind.run for name, kind in KINDS.items()},  # each check kind's verb, from its registry entry
 }
 
 

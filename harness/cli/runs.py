@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from harness.cli.inputs import (
+from harness.cli.parser import FLAGS
+from harness.inputs import (
     BadInput,
     algo_config,
     check_device,
@@ -11,7 +12,6 @@ from harness.cli.inputs import (
     preflight,
     validate_names,
 )
-from harness.cli.parser import FLAGS
 from harness.results import harness_command
 
 

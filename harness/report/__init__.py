@@ -37,9 +37,9 @@ Modules, each one responsibility:
 * ``records``: reading run directories and check files (:class:`RunRecord`, :class:`CheckRecord`), grouping;
 * ``stats``: every statistic (IQM, bootstrap CIs, geometric means, medians, statistical power);
 * ``tables``: the bench report's tables as pure functions of the records;
-* ``formatting``: how a number is written in a table (:func:`harness.report.formatting.fmt`);
-* ``documents``: Markdown and CSV writing, provenance, one ``*_document`` per table;
-* ``plots``: the figures and the harness's one figure saver (:func:`harness.report.plots.save_figure`);
+* ``documents``: Markdown and CSV writing (cells by :func:`harness.formatting.fmt`), provenance, one
+  ``*_document`` per table;
+* ``plots``: the report's figures (saved through :func:`harness.figures.save_figure`);
 * ``suite``: :func:`write_bench_report` and ``index.md``;
 * ``compare``: the ``report`` verb's per-run and per-algorithm tables and curves.
 """

@@ -156,7 +156,8 @@ def performance_profile_frame(scores: dict[str, dict[str, dict[str, np.ndarray]]
 
 def plot_performance_profiles(runs: list[RunRecord], path):
     """One panel per backend: each algorithm's performance profile with its 95% band."""
-    from harness.report.plots import NoPlotData, _algo_palette, pyplot, save_figure
+    from harness.figures import NoPlotData, pyplot, save_figure
+    from harness.report.plots import _algo_palette
 
     scores = normalised_scores(runs)
     frame = performance_profile_frame(scores)

@@ -18,8 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from harness.report.formatting import fmt, fmt_ci, is_missing
-from harness.report.plots import CURVE_BOOTSTRAP, pyplot, save_figure
+from harness.figures import pyplot, save_figure
+from harness.formatting import fmt, fmt_ci, is_missing, markdown_table
+from harness.report.plots import CURVE_BOOTSTRAP
 from harness.report.records import RunRecord, load_run, say
 from harness.report.stats import BOOTSTRAP_SEED, epoch_median, iqm, iqm_with_ci, sample_std
 from harness.results import RunError, atomic_write_text
@@ -104,8 +105,7 @@ def _csv_cell(value) -> str:
 
 def write_table(summaries: list[dict], out_prefix: str | Path, command: str) -> tuple[Path, Path]:
     out_prefix = Path(out_prefix)
-    md = [f"Made by: `{command}`", "", "| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
-    md += ["| " + " | ".join(fmt(s[c]) for c in COLUMNS) + " |" for s in summaries]
+    md = [f"Made by: `{command}`", "", *markdown_table(COLUMNS, [[fmt(s[c]) for c in COLUMNS] for s in summaries])]
     csv = [",".join(COLUMNS)] + [",".join(_csv_cell(s[c]) for c in COLUMNS) for s in summaries]
     md_path = atomic_write_text(out_prefix.with_suffix(".md"), "\n".join(md) + "\n")
     csv_path = atomic_write_text(out_prefix.with_suffix(".csv"), "\n".join(csv) + "\n")
@@ -196,16 +196,14 @@ def write_report(runs: list[Path], out_prefix: str | Path, command: str, plot: b
             "ran, not a ranking.**",
             "",
         ]
-    md += [
-        "| task | backend | envs | h | epochs | algo | seeds | env steps | eval final | eval initial | "
-        "train return, last 20 | median actor-grad var | median actor-grad NSR | median actor-grad cosine | "
-        "final lambda | wall min |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    header = ["task", "backend", "envs", "h", "epochs", "algo", "seeds", "env steps", "eval final", "eval initial"]
+    header += ["train return, last 20", "median actor-grad var", "median actor-grad NSR", "median actor-grad cosine"]
+    header += ["final lambda", "wall min"]
+    rows = [
+        [*(fmt(r[k]) for k in GROUP), str(r["seeds"]), fmt(r["env_steps"]), *(_iqm_cell(r, c) for c in AGGREGATED)]
+        for r in agg
     ]
-    for r in agg:
-        cells = [*(fmt(r[k]) for k in GROUP), str(r["seeds"]), fmt(r["env_steps"])]
-        cells += [_iqm_cell(r, c) for c in AGGREGATED]
-        md.append("| " + " | ".join(cells) + " |")
+    md += markdown_table(header, rows)
     with md_path.open("a") as fh:
         fh.write("\n".join(md) + "\n")
     paths = [md_path, csv_path, agg_csv]

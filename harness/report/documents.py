@@ -13,9 +13,9 @@ from pathlib import Path
 
 import pandas as pd
 
+from harness.formatting import fmt, fmt_ci, fmt_count, fmt_pct, fmt_range, fmt_verdict, is_missing, markdown_table
 from harness.report.aggregate import aggregate_table
 from harness.report.claims import LOCOMOTION_SPEED, claims_table, lambda_course_table, locomotion_table
-from harness.report.formatting import fmt, fmt_ci, fmt_count, fmt_pct, fmt_range, fmt_verdict, is_missing
 from harness.report.free_claims import (
     gradient_variance_claim_table,
     lambda_rate_table,
@@ -70,11 +70,8 @@ class Table:
 
 def markdown_rows(frame: pd.DataFrame, columns: ColumnSpec) -> list[str]:
     """A Markdown table of ``frame`` as ``columns`` say."""
-    lines = ["| " + " | ".join(h for h, _ in columns) + " |", "|" + "---|" * len(columns)]
-    for _, row in frame.iterrows():
-        cells = [how(row) if callable(how) else fmt(row[how]) for _, how in columns]
-        lines.append("| " + " | ".join(cell.replace("|", "/") for cell in cells) + " |")
-    return lines
+    rows = ([how(row) if callable(how) else fmt(row[how]) for _, how in columns] for _, row in frame.iterrows())
+    return markdown_table([h for h, _ in columns], rows)
 
 
 def header_lines(header: dict) -> list[str]:

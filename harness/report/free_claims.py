@@ -216,7 +216,7 @@ def plot_gradient_variance_curves(
     """Fig. 2 redrawn from :func:`gradient_variance_curves`: one panel per setting, per algorithm the mean
     over seeds of the smoothed curves (line) and their minimum to maximum (band), as the paper draws it, on
     a log axis."""
-    from harness.report.plots import NoPlotData, pyplot, save_figure
+    from harness.figures import NoPlotData, pyplot, save_figure
 
     if curves.empty:
         raise NoPlotData("no finished run logged the actor-gradient statistic")

@@ -1,12 +1,9 @@
-"""The bench report's figures (PNG, matplotlib's Agg backend, seaborn, one figure per file), and the
-harness's one figure saver: :func:`save_figure` writes every PNG the harness makes (the bench report's,
-the ``report`` verb's, ``landscape``, ``parity``, ``scaling``) through a temporary file and a rename."""
+"""The bench report's figures (PNG, matplotlib's Agg backend, seaborn, one figure per file), each
+saved by :func:`harness.figures.save_figure`."""
 
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from collections import Counter
 from collections.abc import Iterable
 from pathlib import Path
@@ -14,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from harness.report.formatting import fmt, fmt_rate, is_missing
+from harness.figures import NoPlotData, pyplot, save_figure
+from harness.formatting import fmt, fmt_rate, is_missing
 from harness.report.records import RunRecord, group_runs, metric_column, rank
 from harness.report.stats import BOOTSTRAP_SEED
 from harness.report.tables import GRAD_STATISTICS, TIME_PARTS
@@ -23,44 +21,7 @@ CURVE_POINTS = 100  # points of the common x grid of a learning curve; also the 
 CURVE_BOOTSTRAP = 200  # seaborn's resamples for a curve's band: a picture, not a table, and 2 CPU cores
 
 
-class NoPlotData(Exception):
-    """A plot has nothing to show; the message says why."""
-
-
 # -- plots ----------------------------------------------------------------------------------------
-def pyplot():
-    """matplotlib's pyplot on the Agg backend and seaborn with the report's theme."""
-    import matplotlib
-
-    matplotlib.use("Agg")  # files only, no display
-    import matplotlib.pyplot as plt
-    import seaborn as sns
-
-    sns.set_theme(style="whitegrid", context="notebook")
-    return plt, sns
-
-
-def save_figure(fig, path: str | Path) -> Path:
-    """Write ``fig`` as a PNG (100 dpi, cropped to what is drawn) through a temporary file in the same
-    folder and a rename, so an interruption never leaves half an image; the figure is closed."""
-    import matplotlib.pyplot as plt
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".png")
-    os.close(fd)
-    try:
-        fig.savefig(tmp, dpi=100, bbox_inches="tight")
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    finally:
-        plt.close(fig)
-    return path
-
-
 def _algo_palette(algos: Iterable[str]) -> dict[str, tuple]:
     """The same colour for an algorithm in every plot."""
     _, sns = pyplot()
@@ -475,44 +436,6 @@ def plot_throughput(table: pd.DataFrame, path: Path) -> Path:
             ax.bar_label(container, labels=[fmt_rate(v) for v in container.datavalues], fontsize=7, padding=1)
     grid.figure.suptitle("Throughput per backend and task (throughput checks)", y=1.0, va="bottom")
     return save_figure(grid.figure, path)
-
-
-SCALING_PASSES = (("forward_steps_per_s", "forward"), ("forward_backward_steps_per_s", "forward+backward"))
-
-
-def plot_scaling(rows: list[dict], path: Path, title: str = "") -> Path:
-    """Log-log env-steps/s against the number of envs (``scaling`` rows, :mod:`harness.checks.scaling`): one colour
-    per backend x task, solid forward, dashed with gradients; counts without a rate (skipped) are left out."""
-    points = [
-        {
-            "num envs": row["num_envs"],
-            "env-steps/s": float(row[key]),
-            "backend / task": f"{row['backend']} / {row['task']}",
-            "pass": label,
-        }
-        for row in rows
-        for key, label in SCALING_PASSES
-        if row.get(key)
-    ]
-    if not points:
-        raise NoPlotData("no scaling check")
-    plt, sns = pyplot()
-    fig, ax = plt.subplots(figsize=(10, 5.5))
-    sns.lineplot(
-        data=pd.DataFrame(points),
-        x="num envs",
-        y="env-steps/s",
-        hue="backend / task",
-        style="pass",
-        markers=True,
-        ax=ax,
-    )
-    sns.move_legend(ax, "upper left", bbox_to_anchor=(1.01, 1.0))  # beside the axes: inside, it hid curves
-    ax.set_xscale("log", base=2)
-    ax.set_yscale("log")
-    ax.set_title(title or "throughput vs number of envs (scaling checks, log-log)")
-    fig.tight_layout()
-    return save_figure(fig, path)
 
 
 def plot_landscape(result: dict, path) -> Path:

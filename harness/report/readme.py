@@ -15,6 +15,7 @@ import re
 from collections.abc import Callable
 from pathlib import Path
 
+from harness.formatting import markdown_table
 from harness.results import RunError, atomic_write_text
 
 PROTOCOL = Path("results/bench/protocol")
@@ -65,11 +66,9 @@ def protocol_ant(root: Path) -> str:
         for r in _rows(root / PROTOCOL / "returns_claims.csv")
         if r["metric"] == "return" and all(r[k] == v for k, v in setting.items())
     }
-    lines = [
-        "| algorithm (seeds) | IQM (descriptive) | vs its base: mean ratio - 1, seed-paired [interval] "
-        "| paper's claim: verdict | design |",
-        "|---|---|---|---|---|",
-    ]
+    header = ["algorithm (seeds)", "IQM (descriptive)", "vs its base: mean ratio - 1, seed-paired [interval]"]
+    header += ["paper's claim: verdict", "design"]
+    rows = []
     for row in sorted(returns, key=lambda r: list(ALGORITHM_NAMES).index(r["algo"])):
         claim = claims.get(row["algo"])
         cells = [f"{ALGORITHM_NAMES[row['algo']]} ({row['seeds']})", f"{float(row['iqm_final']):.0f}", "", "", ""]
@@ -81,8 +80,8 @@ def protocol_ant(root: Path) -> str:
             cells[2] = f"{_pct(claim['measured_change'])} {_interval(claim)} ({level}, {look})"
             cells[3] = f"{_pct(claim['claimed_change'])}: {claim['verdict'].split(' (')[0]}"
             cells[4] = _design(claim)
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+        rows.append(cells)
+    return "\n".join(markdown_table(header, rows))
 
 
 def protocol_go2(root: Path) -> str:
@@ -92,11 +91,9 @@ def protocol_go2(root: Path) -> str:
     setting = {"task": "go2", "backend": "newton", "num_envs": "64", "horizon": "32", "epochs": "500"}
     pick = [(a, r) for a, r in _setting_rows(root / PROTOCOL / "returns.csv", setting)]
     velocity = dict(_setting_rows(root / PROTOCOL / "returns_locomotion.csv", setting))
-    lines = [
-        "| algorithm (seeds) | final return IQM [95% CI] | per seed (untrained) "
-        "| mean forward velocity m/s [95% t CI] | per seed |",
-        "|---|---|---|---|---|",
-    ]
+    header = ["algorithm (seeds)", "final return IQM [95% CI]", "per seed (untrained)"]
+    header += ["mean forward velocity m/s [95% t CI]", "per seed"]
+    rows = []
     for algo, row in pick:
         evaluations = _seed_evaluations(root / PROTOCOL / "runs", "go2_newton", algo, "h32")
         finals = ", ".join(f"{e['final']['mean_return']:.0f}" for e in evaluations)
@@ -111,8 +108,8 @@ def protocol_go2(root: Path) -> str:
             f"{float(v['final_velocity_ci_high']):.2f}]",
             speeds,
         ]
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+        rows.append(cells)
+    return "\n".join(markdown_table(header, rows))
 
 
 def _setting_rows(path: Path, setting: dict) -> list[tuple[str, dict]]:
@@ -138,10 +135,7 @@ def standard_returns(root: Path) -> str:
     """The standard profile's final returns: per task, the one setting (N, h, epochs) where all six
     algorithms trained on Newton, IQM [95% bootstrap CI] (seeds)."""
     rows = [r for r in _rows(root / STANDARD / "returns.csv") if r["backend"] == "newton" and r["task"] in TASK_NAMES]
-    lines = [
-        "| task (N x h x epochs = env steps per run) | " + " | ".join(ALGORITHM_NAMES) + " |",
-        "|---" * (len(ALGORITHM_NAMES) + 1) + "|",
-    ]
+    table = []
     for task, name in TASK_NAMES.items():
         settings: dict[tuple, dict] = {}
         for r in rows:
@@ -157,8 +151,80 @@ def standard_returns(root: Path) -> str:
         for algo in ALGORITHM_NAMES:
             iqm, low, high = (float(algos[algo][k]) for k in ("iqm_final", "iqm_ci_low", "iqm_ci_high"))
             cells.append(f"{iqm:.0f} [{low:.0f}, {high:.0f}] ({algos[algo]['seeds']})")
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+        table.append(cells)
+    return "\n".join(markdown_table(["task (N x h x epochs = env steps per run)", *ALGORITHM_NAMES], table))
+
+
+def _sig(value: float) -> str:
+    """Two significant digits below 100, a whole number above: how README writes a growth factor."""
+    return f"{value:.0f}" if abs(value) >= 100 else f"{value:.2g}"
+
+
+def grad_variance_growth(root: Path) -> str:
+    """The standard profile's Fig. 7 (left): growth of each gradient statistic from the shortest to the
+    longest h, per algorithm (ratio of the seeds' geometric means, 95% bootstrap CI)."""
+    rows = [r for r in _rows(root / STANDARD / "grad_variance_vs_h_growth.csv") if r["task"] == "ant"]
+    h_min = min(int(r["h_min"]) for r in rows)
+    widest = {r["algo"]: r for r in rows if int(r["h_min"]) == h_min and r["backend"] == "newton"}
+
+    def growth(row: dict, name: str) -> str:
+        low, high = (float(row[f"{name}_growth_ci_{end}"]) for end in ("low", "high"))
+        return f"{_sig(float(row[f'{name}_growth']))}x [{_sig(low)}, {_sig(high)}]"
+
+    table = [
+        [ALGORITHM_NAMES[a], growth(widest[a], "var"), growth(widest[a], "nsr")] for a in ALGORITHM_NAMES if a in widest
+    ]
+    return "\n".join(markdown_table(["", "raw variance", "noise-to-signal ratio"], table))
+
+
+PARITY_TASKS = {"ant": "Ant", "go2": "Go2"}
+
+
+def _default_preset_parity(root: Path, task: str) -> dict:
+    """The parity check of ``task`` at its default preset (its command names no ``--preset``)."""
+    import shlex
+
+    from harness.words import physics_words
+
+    found = []
+    for path in sorted((root / STANDARD / "checks").glob(f"parity_{task}_*.json")):
+        payload = json.loads(path.read_text())
+        preset, _ = physics_words(shlex.split(payload["provenance"]["command"]))
+        if preset is None:
+            found.append(payload["result"])
+    if len(found) != 1:
+        raise RunError(f"{STANDARD / 'checks'}: {len(found)} parity checks of {task} at its default preset, not one")
+    return found[0]
+
+
+def parity(root: Path) -> str:
+    """The standard profile's parity checks at each task's default preset, the engines side by side."""
+    columns, cells = [], {k: [] for k in ("height", "joints", "episode", "law")}
+    for task, name in PARITY_TASKS.items():
+        result = _default_preset_parity(root, task)
+        for i, backend in enumerate(result["backends"]):
+            p = result["per_backend"][backend]
+            columns.append(f"{name}: {ENGINE_NAMES.get(backend, backend)}")
+            cells["height"].append(f"{p['settle']['height_m']:.4f}")
+            cells["joints"].append("" if i else f"{result['gaps']['settle_joint_rad']:.4f}")
+            cap = result["settings"]["max_steps"]
+            mean = p["first_episode"]["mean"]
+            cells["episode"].append(f"{cap} (none fell)" if mean >= cap else f"{mean:.1f}")
+            law = max(
+                abs(p["probe_contact"]["penetration_m"] / p["probe_contact"]["penalty_law_m"] - 1),
+                abs(p["probe_limit"]["deflection_rad"] / p["probe_limit"]["penalty_law_rad"] - 1),
+            )
+            cells["law"].append(f"within {100 * law:.2g}%")
+    labels = {
+        "height": "trunk height after 2 s at rest (m)",
+        "joints": "largest joint-angle gap after 2 s (rad)",
+        "episode": f"random-policy first episode (mean steps, cap {cap})",
+        "law": "probe penetration / limit deflection vs the penalty law",
+    }
+    return "\n".join(markdown_table(["", *columns], [[labels[k], *v] for k, v in cells.items()]))
+
+
+ENGINE_NAMES = {"newton": "Newton", "mujoco_warp": "MuJoCo-Warp"}
 
 
 #: block name -> the function that makes it from the repository root
@@ -166,6 +232,8 @@ BLOCKS: dict[str, Callable[[Path], str]] = {
     "protocol-ant": protocol_ant,
     "protocol-go2": protocol_go2,
     "standard-returns": standard_returns,
+    "parity": parity,
+    "grad-variance-growth": grad_variance_growth,
 }
 
 

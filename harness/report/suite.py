@@ -7,21 +7,20 @@ from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
 
+from harness.checks.scaling import plot_scaling
+from harness.figures import NoPlotData, pyplot
 from harness.report.aggregate import headline_settings, plot_performance_profiles
 from harness.report.documents import Table, build_tables, header_lines, markdown_rows, write_table
 from harness.report.free_claims import judged_curves, plot_gradient_variance_curves
 from harness.report.plots import (
     PLOT_DESCRIPTIONS,
-    NoPlotData,
     plot_grad_variance,
     plot_lambda_alpha,
     plot_landscapes,
     plot_learning_curves,
     plot_returns_vs_h,
-    plot_scaling,
     plot_throughput,
     plot_wall_time,
-    pyplot,
 )
 from harness.report.records import by_group, load_check, load_run, say
 from harness.report.swap import commit, stage

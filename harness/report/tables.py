@@ -9,7 +9,6 @@ import math
 import numpy as np
 import pandas as pd
 
-from harness.report.formatting import fmt, fmt_pct
 from harness.report.records import (
     SIM_TO_SIM_PREFIXES,
     CheckRecord,
@@ -635,97 +634,14 @@ def step_gain_table(runs: list[RunRecord]) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=columns + ["action_gain_median", "window_growth"])
 
 
-def _pairs_summary(pairs: dict, fields: tuple[str, str]) -> tuple[float | None, float | None]:
-    """(min of fields[0], max of fields[1]) over every comparison nested in ``pairs``."""
-    cosines, diffs = [], []
-
-    def walk(node):
-        if isinstance(node, dict):
-            if fields[0] in node and isinstance(node[fields[0]], int | float):
-                cosines.append(node[fields[0]])
-            if fields[1] in node and isinstance(node[fields[1]], int | float):
-                diffs.append(node[fields[1]])
-            for value in node.values():
-                walk(value)
-
-    walk(pairs)
-    return (min(cosines) if cosines else None), (max(diffs) if diffs else None)
-
-
-_GRADCHECK_FIELDS = (
-    ("tolerance", "tolerance"),
-    ("action_rel_error", "actions"),
-    ("state_rel_error", "initial state"),
-    ("steps", "steps"),
-    ("segment", "segment"),
-)
-
-
 def check_summary(check: CheckRecord) -> str:
-    """One line of a check's key numbers."""
-    r = check.result
-    if check.kind == "gradcheck":
-        parts = [f"max rel. error {fmt(r.get('max_rel_error'))}"]
-        parts += [f"{label} {fmt(r[key])}" for key, label in _GRADCHECK_FIELDS if r.get(key) is not None]
-        return ", ".join(parts)
-    if check.kind == "throughput":
-        fb = r.get("forward_backward_steps_per_s", r.get("forward_backward_steps_per_s_estimated"))
-        return f"{fmt(r.get('forward_steps_per_s'))} env-steps/s forward, {fmt(fb)} with gradients"
-    if check.kind == "crosscheck":
-        cosine, rel_diff = _pairs_summary(r.get("segments", {}), ("cosine", "rel_diff"))
-        return f"gradients across backends: min cosine {fmt(cosine)}, max rel. difference {fmt(rel_diff)}"
-    if check.kind == "parity":
-        g = r.get("gaps", {})
-        return (
-            f"engines: settle height gap {fmt(g.get('settle_height_m'))} m, joint gap "
-            f"{fmt(g.get('settle_joint_rad'))} rad, first-episode length gap {fmt(g.get('episode_length_rel'))} "
-            "(relative)"
-        )
-    if check.kind == "contact-jacobians":
-        a, c = r.get("all", {}), r.get("control_lifted", {})
-        return (
-            f"Jacobians at {a.get('states')} states in contact: median rel. error {fmt(a.get('median_rel_error'))}, "
-            f"{fmt_pct(a.get('within_20pct'))} within 20%; lifted control {fmt(c.get('median_rel_error'))}"
-            + (f"; median state gain {fmt(a['median_state_gain'])}" if "median_state_gain" in a else "")
-        )
-    if check.kind == "grad-paths":
-        s = r.get("summary", {})
-        parts = [
-            f"{label} {fmt(v.get('median_norm'))} ({v.get('above_skip_threshold')} skipped)" for label, v in s.items()
-        ]
-        return f"{r.get('algo')} actor-gradient norms, median over {r.get('epochs')} epochs: " + ", ".join(parts)
-    if check.kind == "forward-crosscheck":
-        _, gap = _pairs_summary(r.get("pairs", {}), ("", "com_distance_max"))
-        return f"forward rollouts across backends: max centre-of-mass distance {fmt(gap)} m, {r.get('steps')} steps"
-    if check.kind == "scaling":
-        rows = [row for row in r.get("rows", []) if row.get("forward_backward_steps_per_s")]
-        if not rows:
-            return "no env count measured with gradients"
-        rates = ", ".join(f"{row['num_envs']}: {fmt(row['forward_backward_steps_per_s'])}" for row in rows)
-        return f"env-steps/s with gradients by env count: {rates}"
-    if check.kind == "fd-schemes":
-        rows = r.get("rows", [])
-        best = min(rows, key=lambda row: row.get("contact_error_median", math.inf), default=None)
-        if best is None:
-            return "no setting measured"
-        return (
-            f"{len(rows)} settings; most accurate in contact: {best.get('fd_scheme')}, position step "
-            f"{best.get('fd_eps_state')}, velocity step {best.get('fd_eps_velocity')}, median error "
-            f"{fmt(best.get('contact_error_median'))}"
-        )
-    if check.kind == "solver-probe":
-        runs = r.get("runs", [])
-        stable = sum(
-            (run.get("random_actions") or run.get("zero_actions") or {}).get("first_non_finite_step") is None
-            for run in runs
-        )
-        return f"{len(runs)} setting(s) probed, {stable} finite throughout"
-    if check.kind == "peer":
-        return (
-            f"{r.get('peer')}: {fmt(r.get('forward_steps_per_s'))} env-steps/s forward, "
-            f"{fmt(r.get('forward_backward_steps_per_s'))} with gradients"
-        )
-    return "result keys: " + ", ".join(sorted(r)[:8])
+    """One line of a check's key numbers, as the kind that wrote it sums them up
+    (:data:`harness.checks.kinds.BY_FILE_KIND`)."""
+    from harness.checks.kinds import BY_FILE_KIND
+
+    if check.kind in BY_FILE_KIND:
+        return BY_FILE_KIND[check.kind].summary(check.result, check.kind)
+    return "result keys: " + ", ".join(sorted(check.result)[:8])
 
 
 def _check_backends(check: CheckRecord) -> str | None:

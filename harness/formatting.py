@@ -4,7 +4,7 @@ table's prose needs (a percentage, an interval, a count, a range, a rate on a pl
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 import pandas as pd
@@ -67,3 +67,11 @@ def fmt_range(values: Iterable) -> str:
 def fmt_rate(value: float) -> str:
     """A rate on a bar: whole numbers with thousands separators from 100 up, else 3 significant digits."""
     return f"{value:,.0f}" if value >= 100 else f"{value:.3g}"
+
+
+def markdown_table(header: Sequence[str], rows: Iterable[Sequence[str]]) -> list[str]:
+    """The lines of a Markdown table: every table the harness writes, the report's and each check's own,
+    goes through here, so a cell's ``|`` never splits a row."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(str(cell).replace("|", "/") for cell in row) + " |" for row in rows]
+    return lines
