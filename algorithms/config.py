@@ -19,6 +19,16 @@ from typing import Literal, get_args, get_type_hints
 
 REMOVED_HYPERPARAMETERS = frozenset({"extra"})  # in config.json files of older runs; never read
 
+# Upper bounds of the counts, so that a value no run can mean (or no machine can hold) is refused when
+# the configuration is made, not hours into training; the harness's flags use the same ones.
+MAX_ENVS = 65_536
+MAX_HORIZON = 10_000
+MAX_EPOCHS = 10**6
+MAX_WIDTH = 8192  # a hidden layer's width: a square float32 layer of 8192 holds 256 MiB before Adam's two states
+MAX_LAYERS = 32
+MAX_CRITICS = 16  # an ensemble of critics; the paper's SAPO uses 2
+MAX_ITERATIONS = 1000  # critic or lambda passes per epoch (DiffRL's critic makes 16)
+
 #: the six algorithms, declared once: a family (SHAC, SAPO) and its actor return (h-step, TD-lambda
 #: with a fixed lambda, TD-lambda with an adaptive one)
 AlgoName = Literal["shac", "shac-tdfixed", "shac-tdadpt", "sapo", "sapo-tdfixed", "sapo-tdadpt"]
@@ -149,14 +159,18 @@ def _problems(cfg: AlgoConfig) -> list[str]:
         if not ok:
             problems.append(text)
 
-    need(cfg.num_envs >= 1 and cfg.horizon >= 1, "num_envs and horizon must be >= 1")
+    need(1 <= cfg.num_envs <= MAX_ENVS, f"num_envs must be in [1, {MAX_ENVS}], got {cfg.num_envs}")
+    need(1 <= cfg.horizon <= MAX_HORIZON, f"horizon must be in [1, {MAX_HORIZON}], got {cfg.horizon}")
     need(0.0 < cfg.gamma <= 1.0, f"gamma must be in (0, 1], got {cfg.gamma}")
     if cfg.adaptive_lambda:
         need(0.0 < cfg.lam < 1.0, f"lam must be in (0, 1) with adaptive lambda, got {cfg.lam}")
     else:
         need(0.0 <= cfg.lam <= 1.0, f"lam must be in [0, 1], got {cfg.lam}")
-    need(all(isinstance(w, int) and w >= 1 for w in cfg.actor_hidden + cfg.critic_hidden), "hidden widths must be >= 1")
-    need(cfg.num_critics >= 1, "num_critics must be >= 1")
+    widths = cfg.actor_hidden + cfg.critic_hidden
+    need(all(1 <= w <= MAX_WIDTH for w in widths), f"hidden widths must be in [1, {MAX_WIDTH}], got {widths}")
+    layers = max(len(cfg.actor_hidden), len(cfg.critic_hidden))
+    need(layers <= MAX_LAYERS, f"at most {MAX_LAYERS} hidden layers, got {layers}")
+    need(1 <= cfg.num_critics <= MAX_CRITICS, f"num_critics must be in [1, {MAX_CRITICS}], got {cfg.num_critics}")
     if cfg.target_critic_alpha is not None:
         alpha = cfg.target_critic_alpha
         need(0.0 <= alpha <= 1.0, f"target_critic_alpha must be in [0, 1], got {alpha}")
@@ -169,15 +183,28 @@ def _problems(cfg: AlgoConfig) -> list[str]:
     need(0.0 <= cfg.min_lr <= min(cfg.actor_lr, cfg.critic_lr), "min_lr must be in [0, min(actor_lr, critic_lr)]")
     for name in ("betas", "lambda_betas"):
         need(all(0.0 <= b < 1.0 for b in getattr(cfg, name)), f"{name} must lie in [0, 1), got {getattr(cfg, name)}")
-    need(cfg.critic_iterations >= 1, "critic_iterations (m_critic) must be >= 1 (0 never trains the critic)")
+    need(
+        1 <= cfg.critic_iterations <= MAX_ITERATIONS,
+        f"critic_iterations (m_critic) must be in [1, {MAX_ITERATIONS}] (0 never trains the critic), "
+        f"got {cfg.critic_iterations}",
+    )
     # a tanh-squashed action's entropy per dimension is at most ln 2 (uniform on [-1, 1]); far below, the
     # target asks for a standard deviation float32 cannot hold
     target = cfg.target_entropy_per_dim
     need(-50.0 <= target < math.log(2.0), f"target_entropy_per_dim must be in [-50, ln 2), got {target}")
-    need(cfg.critic_minibatches >= 1 and cfg.lambda_batches >= 1, "critic_minibatches and lambda_batches must be >= 1")
-    need(cfg.max_epochs >= 0, "max_epochs must be >= 0")
+    # more minibatches than samples (envs x h), or batches than envs, would silently make fewer
+    samples = cfg.num_envs * cfg.horizon
+    need(
+        1 <= cfg.critic_minibatches <= samples,
+        f"critic_minibatches must be in [1, num_envs x horizon = {samples}], got {cfg.critic_minibatches}",
+    )
+    need(
+        1 <= cfg.lambda_batches <= cfg.num_envs,
+        f"lambda_batches (env groups) must be in [1, num_envs = {cfg.num_envs}], got {cfg.lambda_batches}",
+    )
+    need(0 <= cfg.max_epochs <= MAX_EPOCHS, f"max_epochs must be in [0, {MAX_EPOCHS}], got {cfg.max_epochs}")
     m = cfg.lambda_iterations
-    need(m > 0.0, "lambda_iterations (m_lambda) must be > 0")
+    need(0.0 < m <= MAX_ITERATIONS, f"lambda_iterations (m_lambda) must be in (0, {MAX_ITERATIONS}], got {m}")
     if 0.0 < m < 1.0:
         need(float(1.0 / m).is_integer(), "a fractional lambda_iterations must be 1/k (0.5, 0.25, ...)")
     elif m >= 1.0:

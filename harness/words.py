@@ -65,6 +65,7 @@ def int_in(low: int, high: int):
         return value
 
     parse.__name__ = "integer"  # argparse names the type in its messages
+    parse.bounds = (low, high)
     return parse
 
 
@@ -102,12 +103,23 @@ def positive_float(text: str) -> float:
     return value
 
 
-def span(text: str) -> float:
-    """A landscape's half-width: positive, at most :data:`MAX_SPAN` (beyond it every point is NaN)."""
-    value = positive_float(text)
-    if value > MAX_SPAN:
-        raise argparse.ArgumentTypeError(f"expected a number in (0, {MAX_SPAN:g}], got {text!r}")
-    return value
+def positive_float_up_to(high: float):
+    """A number flag in (0, high]: positive, finite, and no larger than a bound of the machine or of
+    what the number means."""
+
+    def parse(text: str) -> float:
+        value = positive_float(text)
+        if value > high:
+            raise argparse.ArgumentTypeError(f"expected a number in (0, {high:g}], got {text!r}")
+        return value
+
+    parse.__name__ = "number"
+    parse.bounds = (0.0, high)
+    return parse
+
+
+#: a landscape's half-width: beyond :data:`MAX_SPAN` every point is NaN
+span = positive_float_up_to(MAX_SPAN)
 
 
 def boolean(text: str) -> bool:

@@ -22,6 +22,8 @@ task_class = REGISTRY.get
 def make_task(name: str, physics: PhysicsSpec | None = None, preset: str | None = None) -> Task:
     """Task ``name`` with its ``preset`` (the task's default when ``None``), or explicit ``physics``."""
     cls = task_class(name)
+    if preset and not cls.presets:  # a task without presets may not take the argument at all
+        raise UnknownPresetError(f"task {name!r} has no physics presets; got {preset!r}")
     return cls(physics, preset) if preset else cls(physics)
 
 

@@ -71,7 +71,7 @@ CLI_CASES = [
     ),
     ("render on an unknown backend", ["render", "--run", "RUN", "--backend", "bullet"], None, "unknown backend"),
     ("render without a policy", ["render", "--run", "RUN"], "missing_checkpoint", "has no checkpoint.pt"),
-    ("render zero frames", ["render", "--run", "RUN", "--frames", "0"], None, "positive integer"),
+    ("render zero frames", ["render", "--run", "RUN", "--frames", "0"], None, "[1, 1000]"),
     ("train without --out", ["train", *ANT, "--algo", "shac", "--epochs", "1"], None, "needs --out"),
     (
         "unknown backend",
@@ -184,7 +184,7 @@ CLI_CASES = [
     ("report into a directory", ["report", "--runs", "RUN", "--out", "RUN"], None, "is a directory"),
     ("gradcheck nan tolerance", ["gradcheck", *ANT, "--tolerance", "nan"], None, "positive finite"),
     ("gradcheck negative tolerance", ["gradcheck", *ANT, "--tolerance", "-1"], None, "positive finite"),
-    ("throughput zero windows", ["throughput", *ANT, "--windows", "0"], None, "positive integer"),
+    ("throughput zero windows", ["throughput", *ANT, "--windows", "0"], None, "[1, 1000]"),
     ("throughput into a directory", ["throughput", *ANT, "--out", "RUN"], None, "is a directory"),
     (
         "grad-growth bogus constant",
@@ -249,7 +249,7 @@ CLI_CASES = [
         "sweep zero jobs",
         ["sweep", *ANT, "--algos", "shac", "--epochs", "1", "--out", "o", "--jobs", "0"],
         None,
-        "positive",
+        "[1, 1024]",
     ),
     ("solver-probe unknown task", ["solver-probe", "--task", "dog"], None, "unknown task"),
     ("solver-probe task without candidates", ["solver-probe", "--task", "pointmass"], None, "candidates for the tasks"),
@@ -354,6 +354,37 @@ CLI_CASES += [  # an output in the way, found before the work rather than after 
         "is a directory",
     ),
 ]
+CLI_CASES += [  # the bound audit: every count a flag, a hyperparameter or a spec takes has an upper bound
+    ("a million timed windows", ["throughput", *ANT, "--windows", "1000000"], None, "[1, 1000]"),
+    ("a tolerance above 1", ["gradcheck", *ANT, "--tolerance", "5"], None, "(0, 1]"),
+    ("a billion settle steps", ["gradcheck", *ANT, "--with-contact", "--settle", "1000000000"], None, "[0, 1000000]"),
+    ("a billion worlds timed", ["throughput", *ANT, "--grad-cost-only", "1000000000"], None, "[1, 1048576]"),
+    ("a scaling budget of a century", ["scaling", *ANT, "--max-seconds", "3e9"], None, "(0, 604800]"),
+    ("a billion frames", ["render", "--run", "RUN", "--frames", "1000000000"], None, "[1, 1000]"),
+    ("a million jobs at once", ["bench", "--profile", "smoke", "--jobs", "1000000"], None, "[1, 1024]"),
+    ("a billion critic passes", [*TRAIN, "--critic-iterations", "1000000000", "--out", "new_run"], None, "[1, 1000]"),
+    ("a hidden layer of a million", [*TRAIN, "--actor-hidden", "1000000", "--out", "new_run"], None, "[1, 8192]"),
+    (
+        "more critic minibatches than samples",
+        [*TRAIN, "--critic-minibatches", "17", "--out", "new_run"],
+        None,
+        "num_envs x horizon = 16",
+    ),
+    ("more lambda batches than envs", [*TRAIN, "--lambda-batches", "5", "--out", "new_run"], None, "num_envs = 4"),
+    ("a spec's check asking a million windows", ["bench", "--spec", "FILE", "--dry-run"], "bad_spec_args", "[1, 1000]"),
+    (
+        "a spec's check on a preset the task lacks",
+        ["bench", "--spec", "FILE", "--dry-run"],
+        "bad_spec_preset",
+        "task 'ant' has no physics preset 'nope'",
+    ),
+    (
+        "a spec's check on a preset for a plug-in task",
+        ["bench", "--spec", "FILE", "--dry-run"],
+        "plugin_spec_preset",
+        "task 'pointmass' has no physics presets",
+    ),
+]
 DELETE = object()  # a config.json field removed, as a version that did not write it left it
 FOLDER_DAMAGES = [  # (what, config.json fields changed (dotted: nested), what the refusal says)
     ("fractional seed", {"seed": 1.5}, "seed is 1.5, not an integer"),
@@ -456,6 +487,14 @@ def _damage(run: Path, how: str | dict | None, monkeypatch) -> None:
         monkeypatch.setenv("MUJOCO_GL", "bogus")
     elif how == "video_folder":
         (run / "render_newton.mp4").mkdir()
+    elif how == "bad_spec_args":
+        spec = '[suite]\nname = "s"\n[[check]]\nkind = "throughput"\nbackends = ["newton"]\ntasks = ["ant"]\n'
+        (run.parent / "file").write_text(spec + 'args = ["--windows", "1000000"]\n')
+    elif how in ("bad_spec_preset", "plugin_spec_preset"):
+        name = "ant" if how == "bad_spec_preset" else "pointmass"
+        engine = "newton" if how == "bad_spec_preset" else "pointmass"
+        spec = f'[suite]\nname = "s"\n[[check]]\nkind = "gradcheck"\nbackends = ["{engine}"]\ntasks = ["{name}"]\n'
+        (run.parent / "file").write_text(spec + 'args = ["--preset", "nope"]\n')
     elif how == "no_cuda":
         monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
 
@@ -545,6 +584,12 @@ API_CASES = [
     ("an actor with no inputs", lambda: _actor(obs_dim=0), ValueError, "in_dim must be an integer >= 1"),
     ("an empty hidden layer", lambda: _actor(hidden_sizes=(64, 0)), ValueError, "a hidden size must be"),
     ("a task observing fewer columns", lambda: _short_sighted_env(), ValueError, "declares obs_dim 37"),
+    (
+        "a preset for a plug-in task that has none",
+        lambda: make_task("pointmass", preset="rewarped"),
+        ValueError,
+        "task 'pointmass' has no physics presets",
+    ),
 ]
 
 

@@ -68,7 +68,7 @@ def test_scaling_writes_csv_json_and_plot_and_skips_what_would_take_too_long(tmp
     "args, needle",
     [
         (["scaling", "--backend", "newton", "--task", "ant", "--envs", "4", "1"], "distinct and increasing"),
-        (["scaling", "--backend", "newton", "--task", "ant", "--envs", "0"], "positive integer"),
+        (["scaling", "--backend", "newton", "--task", "ant", "--envs", "0"], "[1, 65536]"),
         (["scaling-plot", "--csv", "nowhere.csv", "--out", "x.png"], "no such scaling CSV"),
         (["fd-schemes", "--task", "soft_jumper"], "articulated tasks"),
         (["fd-schemes", "--task", "ant", "--schemes", "adaptive", "backward"], "unknown scheme 'backward'"),

@@ -5,6 +5,7 @@ from __future__ import annotations
 import ast
 import dataclasses
 import json
+import math
 import shutil
 import subprocess
 import sys
@@ -331,3 +332,39 @@ def test_every_markdown_table_goes_through_one_writer():
         for path in _modules(package):
             if path != writer:
                 assert "|---" not in path.read_text() and "---|" not in path.read_text(), path.relative_to(ROOT)
+
+
+def test_every_number_a_flag_takes_is_bounded():
+    """The bound audit: every numeric flag of every verb refuses, in its type, values past a bound of the
+    machine, of time or of what it means (hyperparameters: AlgoConfig's own checks, tested below)."""
+    unbounded = []
+    hyperparameters = {f.name for f in dataclasses.fields(AlgoConfig)} - {"num_envs", "horizon"}
+    for verb, sub in build_parser()._subparsers._group_actions[0].choices.items():
+        for action in sub._actions:
+            name = getattr(action.type, "__name__", "")
+            if action.type is None or name in ("one_line", "parse_option", "boolean") or action.dest in hyperparameters:
+                continue
+            low, high = getattr(action.type, "bounds", (None, None))
+            if high is None or not math.isfinite(high):
+                unbounded.append(f"{verb} {action.option_strings[0]} ({name})")
+    assert not unbounded, unbounded
+
+
+@pytest.mark.parametrize(
+    "change, needle",
+    [
+        ({"critic_iterations": 10**9}, "critic_iterations"),
+        ({"lambda_iterations": 1e9}, "lambda_iterations"),
+        ({"actor_hidden": (10**6,)}, "hidden widths"),
+        ({"critic_hidden": (8,) * 64}, "hidden layers"),
+        ({"num_critics": 1000}, "num_critics"),
+        ({"num_envs": 10**6}, "num_envs"),
+        ({"horizon": 10**6}, "horizon"),
+        ({"max_epochs": 10**9}, "max_epochs"),
+        ({"num_envs": 4, "horizon": 4, "critic_minibatches": 17}, "critic_minibatches"),
+        ({"num_envs": 4, "lambda_batches": 5}, "lambda_batches"),
+    ],
+)
+def test_every_count_of_the_configuration_has_an_upper_bound(change, needle):
+    with pytest.raises(ValueError, match=needle):
+        AlgoConfig().replace(**change)

@@ -13,8 +13,16 @@ from __future__ import annotations
 import importlib
 from dataclasses import dataclass, field
 
-from harness.bounds import MAX_CONTACT_STATES
-from harness.words import int_in, nonnegative_int, positive_float, positive_int
+from harness.bounds import (
+    MAX_CONTACT_STATES,
+    MAX_ENVS,
+    MAX_EPOCHS,
+    MAX_SECONDS,
+    MAX_STEPS,
+    MAX_STRIDE,
+    MAX_WORLDS,
+)
+from harness.words import int_in, positive_float_up_to
 
 
 @dataclass(frozen=True)
@@ -100,7 +108,7 @@ KINDS: dict[str, CheckKind] = {
                 (
                     "--settle",
                     {
-                        "type": nonnegative_int,
+                        "type": int_in(0, MAX_STEPS),
                         "default": 0,
                         "help": "with --with-contact: zero-action steps before the checked segment (a robot in "
                         "stance, a body at rest)",
@@ -136,7 +144,7 @@ KINDS: dict[str, CheckKind] = {
                 (
                     "--grad-cost-only",
                     {
-                        "type": positive_int,
+                        "type": int_in(1, MAX_WORLDS),
                         "metavar": "WORLDS",
                         "help": "finite-difference adapters whose timed windows are out of reach (MuJoCo-Warp soft "
                         "bodies): time one control step of WORLDS worlds and scale it to a step with gradients "
@@ -197,11 +205,14 @@ KINDS: dict[str, CheckKind] = {
                         "help": "states in contact compared (default 200)",
                     },
                 ),
-                ("--stride", {"type": positive_int, "default": 5, "help": "steps between sampled states of an env"}),
+                (
+                    "--stride",
+                    {"type": int_in(1, MAX_STRIDE), "default": 5, "help": "steps between sampled states of an env"},
+                ),
                 (
                     "--policy-epochs",
                     {
-                        "type": nonnegative_int,
+                        "type": int_in(0, MAX_EPOCHS),
                         "default": 30,
                         "help": "half the states come from a SHAC policy trained this many epochs on newton, half "
                         "from random actions (0: all random; default %(default)s)",
@@ -251,7 +262,7 @@ KINDS: dict[str, CheckKind] = {
                 (
                     "--envs",
                     {
-                        "type": positive_int,
+                        "type": int_in(1, MAX_ENVS),
                         "nargs": "+",
                         "default": [1, 4, 16, 64, 256],
                         "help": "env counts, in increasing order (default: %(default)s)",
@@ -260,7 +271,7 @@ KINDS: dict[str, CheckKind] = {
                 (
                     "--max-seconds",
                     {
-                        "type": positive_float,
+                        "type": positive_float_up_to(MAX_SECONDS),
                         "default": 600.0,
                         "help": "skip an env count whose predicted measuring time exceeds this (default: %(default)s)",
                     },
@@ -292,7 +303,7 @@ KINDS: dict[str, CheckKind] = {
                 (
                     "--timing-envs",
                     {
-                        "type": nonnegative_int,
+                        "type": int_in(0, MAX_ENVS),
                         "default": 16,
                         "help": "envs of the timed step with gradients (0: accuracy only) (default: %(default)s)",
                     },
@@ -309,7 +320,7 @@ KINDS: dict[str, CheckKind] = {
                 (
                     "--settle",
                     {
-                        "type": nonnegative_int,
+                        "type": int_in(0, MAX_STEPS),
                         "default": 30,
                         "help": "zero-action steps before the states in contact are sampled (default: %(default)s)",
                     },

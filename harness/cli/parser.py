@@ -16,12 +16,17 @@ from harness.bounds import (
     MAX_ENVS,
     MAX_EPOCHS,
     MAX_EVAL_SEEDS,
+    MAX_FRAMES,
+    MAX_GPUS_PER_RUN,
     MAX_GRID,
     MAX_HORIZON,
+    MAX_JOBS,
     MAX_SEGMENT_STEPS,
     MAX_STEP_GAIN_STATES,
     MAX_STEPS,
     MAX_STRIDE,
+    MAX_TOLERANCE,
+    MAX_WINDOWS,
 )
 from harness.checks.kinds import KINDS
 from harness.inputs import BadInput
@@ -30,12 +35,10 @@ from harness.words import (
     finite,
     int_in,
     integer,
-    nonnegative_int,
     one_line,
     optional_float,
     parse_option,
-    positive_float,
-    positive_int,
+    positive_float_up_to,
     span,
 )
 
@@ -107,13 +110,16 @@ FLAGS: dict[str, dict] = {
     "out": {"type": one_line, "help": "the result file to write (JSON)"},
     "run": {"type": one_line, "help": "run directory written by `train`"},
     "runs": {"type": one_line, "nargs": "+", "help": "run directories written by `train`"},
-    "windows": {"type": positive_int, "help": "timed windows of h steps of each kind (the best is kept)"},
+    "windows": {"type": int_in(1, MAX_WINDOWS), "help": "timed windows of h steps of each kind (the best is kept)"},
     "eval_seeds": {"type": int_in(1, MAX_EVAL_SEEDS), "default": 10, "help": "evaluation seeds (10000, 10001, ...)"},
     "max_steps": {"type": int_in(1, MAX_STEPS), "help": "cap on steps per evaluation episode (default: the task's)"},
-    "checkpoint_every": {"type": positive_int, "default": 1, "help": "epochs between checkpoints"},
-    "tolerance": {"type": positive_float, "help": "max relative gradient error allowed (default 2e-2)"},
+    "checkpoint_every": {"type": int_in(1, MAX_EPOCHS), "default": 1, "help": "epochs between checkpoints"},
+    "tolerance": {
+        "type": positive_float_up_to(MAX_TOLERANCE),
+        "help": "max relative gradient error allowed (default 2e-2)",
+    },
     "jobs": {
-        "type": positive_int,
+        "type": int_in(1, MAX_JOBS),
         "help": "jobs at once (bench: the spec's [suite] jobs; sweep: 1; ray: the cluster's CPUs)",
     },
     "launcher": {
@@ -126,7 +132,7 @@ FLAGS: dict[str, dict] = {
         "help": "Ray head HOST:PORT to join (default: RAY_ADDRESS if set, else a new local Ray instance)",
     },
     "gpus_per_run": {
-        "type": positive_float,
+        "type": positive_float_up_to(MAX_GPUS_PER_RUN),
         "default": 0.25,
         "help": "GPU fraction each run asks Ray for when the device is CUDA",
     },
@@ -326,7 +332,7 @@ def _analysis_verbs(sub) -> None:
     _add(p, "landscape", "run", "num_envs", "seed", required=("run",))
     p.add_argument("--grid", type=int_in(2, MAX_GRID), default=40, help="points per axis (default: %(default)s)")
     p.add_argument("--span", type=span, default=1.0, help="each axis spans [-span, span] (default: 1)")
-    p.add_argument("--warmup-steps", type=nonnegative_int, default=0, help="policy steps before the window")
+    p.add_argument("--warmup-steps", type=int_in(0, MAX_STEPS), default=0, help="policy steps before the window")
 
     p = sub.add_parser(
         "step-gain",
@@ -339,4 +345,4 @@ def _analysis_verbs(sub) -> None:
     p = sub.add_parser("render", help="a video and a filmstrip of a run's final policy (headless)")
     _add(p, "render", "run", "backend", "max_steps", required=("run",))
     p.add_argument("--compare", action="store_true", help="both engines side by side, the same policy and seed")
-    p.add_argument("--frames", type=positive_int, default=60, help="frames drawn, evenly spaced (default: 60)")
+    p.add_argument("--frames", type=int_in(1, MAX_FRAMES), default=60, help="frames drawn, evenly spaced (default: 60)")

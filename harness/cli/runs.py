@@ -139,6 +139,7 @@ def cmd_sweep(args) -> int:
         ],
     }
     return run_suite(
+        command_problem=_command_problem(),
         spec=spec,
         store=out.parent,
         jobs=args.jobs,
@@ -149,12 +150,29 @@ def cmd_sweep(args) -> int:
     )
 
 
+def _command_problem():
+    """What the command line says of a job's words (None: it parses), with one parser for every job."""
+    from harness.cli.parser import build_parser
+
+    parser = build_parser()
+
+    def problem(words: list[str]) -> str | None:
+        try:
+            parser.parse_args([str(w) for w in words])
+        except BadInput as exc:
+            return str(exc)
+        return None
+
+    return problem
+
+
 def cmd_bench(args) -> int:
     from harness.suite.runner import run_suite
 
     if args.device:
         check_device(args.device)
     return run_suite(
+        command_problem=_command_problem(),
         profile=args.profile,
         spec_file=args.spec,
         store=args.store,

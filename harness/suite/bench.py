@@ -176,6 +176,15 @@ def gradient_identity(backend_names, task: str, preset: str | None = None, optio
 
 
 @functools.cache
+def _known_preset(task: str, preset: str | None) -> None:
+    """Refuse (ValueError, one line) a physics preset the task does not define."""
+    from tasks import make_task
+
+    if preset:
+        make_task(task, preset=preset)
+
+
+@functools.cache
 def _gradient_settings(backend: str, task: str, preset: str | None, options: tuple = ()) -> dict:
     import backends
     from tasks import make_task
@@ -666,7 +675,13 @@ def _check_jobs(data: dict, store: Path, device: str, known: dict) -> list[Job]:
             for label_backend, words in _check_targets(kind, blist, task):
                 differentiates = KINDS[kind].differentiates
                 preset, options = _check_physics(args)
-                gradients = gradient_identity(label_backend.split("-"), task, preset, options) if differentiates else {}
+                try:
+                    _known_preset(task, preset)
+                    gradients = (
+                        gradient_identity(label_backend.split("-"), task, preset, options) if differentiates else {}
+                    )
+                except ValueError as exc:  # a preset the task lacks, an option the adapter refuses
+                    raise RunError(f"{where} on {task}: {exc}") from None
                 key = _hash([kind, *words, *args, device, physics_identity(task)] + ([gradients] if gradients else []))
                 out = store / "checks" / f"{kind}_{task}_{label_backend}_{key}.json"
                 if KINDS[kind].takes_device:

@@ -17,6 +17,7 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from harness.checks.kinds import CHECK_KINDS
@@ -305,10 +306,13 @@ def run_suite(
     address: str | None = None,
     gpus_per_run: float = 0.25,
     device: str | None = None,
+    command_problem: Callable[[list[str]], str | None] | None = None,
 ) -> int:
     """Plan, run what is missing (on the local or the Ray launcher), write the tables and plots; 0 when
     every job succeeded. The spec is a profile, a TOML file or ``spec``, one made in memory (``sweep``);
-    ``device``, where given, replaces its [suite] device."""
+    ``device``, where given, replaces its [suite] device. ``command_problem`` reads a job's harness words
+    as the command line would (the CLI passes its parser), so a spec's check arguments out of bounds are
+    refused before any job runs, not when their job's turn comes."""
     stream = stream or sys.stdout  # the stdout of now, not of import time
     from harness.suite.launchers import make_launcher
 
@@ -325,6 +329,10 @@ def run_suite(
     if problem:
         raise RunError(f"the store {store}: {problem}")
     all_jobs = plan(data, store)
+    for job in all_jobs if command_problem else ():
+        problem = command_problem(job.argv[3:])  # after "python -m harness"
+        if problem:
+            raise RunError(f"{spec_path}: job {job.label}: {problem}")
     workers = jobs or int(data["suite"].get("jobs", 1))
     if dry_run:
         for job in all_jobs:

@@ -26,8 +26,10 @@ from harness.bounds import (
     MAX_ENVS,
     MAX_EPOCHS,
     MAX_EVAL_SEEDS,
+    MAX_FRAMES,
     MAX_GRID,
     MAX_HORIZON,
+    MAX_JOBS,
     MAX_SPAN,
     MAX_STEP_GAIN_STATES,
     MAX_STEPS,
@@ -254,14 +256,14 @@ STEP_GAIN = table(
 )
 RENDER = table(
     {**SELECTION, "backend": backend, "compare": boolean}
-    | {"max_steps": integer(1, 10**5), "frames": integer(1, 1000)},
+    | {"max_steps": integer(1, 10**5), "frames": integer(1, MAX_FRAMES)},
     required=("task", "backend"),
 )
 SUITE = table(
     {
         "name": text(pattern=NAME_PATTERN),
         "description": text(),
-        "jobs": integer(1, 1024),
+        "jobs": integer(1, MAX_JOBS),
         "device": text(_devices),
         "order": text(("seed", "block")),
     },
