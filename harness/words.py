@@ -37,16 +37,6 @@ def physics_words(words: list[str]) -> tuple[str | None, list[str]]:
 # -- value types of flags ------------------------------------------------------------------------------
 
 
-def positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
-
-
 def integer(text: str) -> int:
     try:
         return int(text)
@@ -55,8 +45,8 @@ def integer(text: str) -> int:
 
 
 def int_in(low: int, high: int):
-    """An integer flag in [low, high]: the limits a suite spec has (:mod:`harness.suite.schema`), so that
-    a value the types or the machine cannot hold is refused before any work."""
+    """An integer flag in [low, high] (:mod:`harness.bounds`; a spec's keys have the same limits), so
+    that a value the types or the machine cannot hold is refused before any work."""
 
     def parse(text: str) -> int:
         value = integer(text)
@@ -67,13 +57,6 @@ def int_in(low: int, high: int):
     parse.__name__ = "integer"  # argparse names the type in its messages
     parse.bounds = (low, high)
     return parse
-
-
-def nonnegative_int(text: str) -> int:
-    value = integer(text)
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {value}")
-    return value
 
 
 def one_line(text: str) -> str:
