@@ -334,10 +334,10 @@ def test_forward_locomotion_reads_each_seeds_final_velocity_against_the_speed_an
     from harness.report.claims import LOCOMOTION_SPEED, locomotion_table
 
     velocities = {  # (algo, num_envs) -> final velocity per seed (None: the evaluation recorded none)
-        ("shac", 4): [0.02, -0.05, 0.01],  # stands or drifts: does not move forward
-        ("shac-tdadpt", 4): [0.9, 1.1, 1.0],  # walks
-        ("shac", 8): [0.0, 2.0],  # one seed walks, one does not: the CI holds the speed
-        ("shac", 16): [1.0, 1.1, 1.2],  # walks, where the paper says the Go2's SHAC does not
+        ("shac", 4): [0.02, -0.05, 0.01, 0.03, 0.0, 2.0],  # stands at the 5-seed look; seed 5 waits for the next
+        ("shac-tdadpt", 4): [0.9, 1.1, 1.0, 0.95, 1.05],  # walks
+        ("shac", 8): [0.0, 2.0],  # before the first look: no verdict, however the seeds read
+        ("shac", 16): [1.0, 1.1, 1.2, 1.05, 1.15],  # walks, where the paper says the Go2's SHAC does not
         ("shac-tdfixed", 8): [None, None],  # nothing recorded: no row
     }
     for (algo, num_envs), finals in velocities.items():
@@ -357,18 +357,25 @@ def test_forward_locomotion_reads_each_seeds_final_velocity_against_the_speed_an
     ]
     still = _row(table, algo="shac", num_envs=4)
     finals = np.array(velocities[("shac", 4)])
-    low, high = stats.t.interval(0.95, 2, loc=finals.mean(), scale=stats.sem(finals))
+    look = finals[:5]  # the first look reads its own first 5 seeds, at 97.5%
+    low, high = stats.t.interval(0.975, 4, loc=look.mean(), scale=stats.sem(look))
+    assert (still["look"], still["confidence"]) == ("5 seeds", pytest.approx(0.975))
+    assert still["look_velocity"] == pytest.approx(look.mean())
+    assert (still["look_ci_low"], still["look_ci_high"]) == pytest.approx((low, high))
+    assert high < LOCOMOTION_SPEED and still["verdict"] == "does not move forward" and still["design"] == "decided"
+    # the descriptive columns read every seed at 95%, the sixth (walking) seed included
+    all_low, all_high = stats.t.interval(0.95, 5, loc=finals.mean(), scale=stats.sem(finals))
     assert still["final_velocity"] == pytest.approx(finals.mean())
-    assert (still["final_velocity_ci_low"], still["final_velocity_ci_high"]) == pytest.approx((low, high))
-    assert high < LOCOMOTION_SPEED and still["verdict"] == "does not move forward"
-    assert still["untrained_velocity"] == pytest.approx(0.05) and still["seeds_moving"] == 0
+    assert (still["final_velocity_ci_low"], still["final_velocity_ci_high"]) == pytest.approx((all_low, all_high))
+    assert still["untrained_velocity"] == pytest.approx(0.125) and still["seeds_moving"] == 1
     # the paper says the Go2's SHAC does not acquire forward locomotion and its SHAC-TDAdpt improves on it
     assert (still["paper_says"], still["paper_verdict"]) == ("does not move", "confirmed")
     walking = _row(table, algo="shac-tdadpt", num_envs=4)
-    assert walking["verdict"] == "moves forward" and walking["seeds_moving"] == 3
+    assert walking["verdict"] == "moves forward" and walking["seeds_moving"] == 5
     assert (walking["paper_says"], walking["paper_verdict"]) == ("moves", "confirmed")
-    split = _row(table, algo="shac", num_envs=8)
-    assert split["seeds_moving"] == 1 and split["verdict"] == "undecided" and split["paper_verdict"] == "undecided"
+    early = _row(table, algo="shac", num_envs=8)
+    assert (early["look"], early["design"], early["seeds_wanted"]) == ("", "before first look", 5)
+    assert early["verdict"] == "undecided (before the first look)" and early["paper_verdict"] == "undecided"
     against = _row(table, algo="shac", num_envs=16)
     # a budget below the paper's protocol (N 64, h 32, 2000 epochs) cannot contradict the paper
     assert against["verdict"] == "moves forward" and against["paper_verdict"] == "not confirmed at this budget"

@@ -59,9 +59,10 @@ def _runs(data: dict, store: Path) -> dict[tuple[str, int], RunSpec]:
     return {(j.run.algo, j.run.seed): j.run for j in plan(whole, store / "elsewhere") if j.kind == "train"}
 
 
-def _evaluated(run: RunSpec, store: Path, final_return: float) -> Path:
+def _evaluated(run: RunSpec, store: Path, final_return: float, velocity: float | None = None) -> Path:
     """The folder a finished, evaluated run leaves (its checkpoints not kept): job.json, config.json, every
-    epoch's metrics and an eval.json with the final policy's mean return."""
+    epoch's metrics and an eval.json with the final policy's mean return (and ``velocity``, its mean forward
+    velocity, when given)."""
     from harness.suite.runner import _write_job_file
 
     job = train_job(run, store / "runs" / run.dirname)
@@ -72,6 +73,9 @@ def _evaluated(run: RunSpec, store: Path, final_return: float) -> Path:
     rows = [{"epoch": e, "env_steps": (e + 1) * run.num_envs * run.horizon} for e in range(run.epochs)]
     (job.run_dir / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
     payload = {**job.expect, "initial": {"mean_return": 10.0}, "final": {"mean_return": float(final_return)}}
+    if velocity is not None:
+        payload["initial"]["mean_forward_velocity"] = 0.0
+        payload["final"]["mean_forward_velocity"] = float(velocity)
     (job.run_dir / "eval.json").write_text(json.dumps(payload))
     assert job.is_done()
     return job.run_dir
@@ -114,6 +118,28 @@ def test_a_claim_decided_at_the_first_look_plans_no_seed_beyond_it(tmp_path):
     seeds, said = _plan(data, store)
     assert seeds == {"shac": [0, 1, 2, 3, 4], "shac-tdfixed": [0, 1, 2, 3, 4]}
     assert "5 pairs, confirmed (larger than claimed), decided -> 5 seeds" in said
+
+
+@pytest.mark.parametrize(
+    ("velocities", "said", "planned"),
+    [
+        (None, "no evaluated seed yet -> 5 seeds", 5),
+        ([0.0, 1.0, 0.1, 0.9, 0.5], "5 seeds, undecided, continue -> 10 seeds", 10),
+        ([0.0, 0.01, -0.02, 0.0, 0.01], "5 seeds, does not move forward, decided -> 5 seeds", 5),
+    ],
+)
+def test_the_papers_locomotion_claim_plans_seeds_as_its_looks_ask(tmp_path, velocities, said, planned):
+    """The Go2's SHAC alone (no paired claim in the block): the paper says it does not move forward, and
+    the design plans seeds for that verdict's looks (docs/statistics.md)."""
+    text = SPEC.format(extra="sequential = true").replace('tasks = ["ant"]', 'tasks = ["go2"]')
+    data, store = _spec(tmp_path, text=text.replace('algos = ["shac", "shac-tdfixed"]', 'algos = ["shac"]')), tmp_path
+    if velocities is not None:
+        runs = _runs(data, store)
+        for s, velocity in enumerate(velocities):
+            _evaluated(runs["shac", s], store / "store", 100.0, velocity)
+    seeds, lines = _plan(data, store / "store")
+    assert seeds == {"shac": list(range(planned))}
+    assert f"sequential: go2 shac moves forward? (newton, N 4, h 4, 2 epochs): {said}" in lines
 
 
 def test_a_started_run_beyond_what_the_design_wants_stays_planned(tmp_path):

@@ -20,7 +20,15 @@ import numpy as np
 import pandas as pd
 
 from harness.report.records import RunRecord, by_group, metric_column, value_or_range
-from harness.report.sequential import CONFIRMED, CONTRADICTED, NOT_CONFIRMED, UNDECIDED, at_paper_protocol, judge
+from harness.report.sequential import (
+    CONFIRMED,
+    CONTRADICTED,
+    NOT_CONFIRMED,
+    UNDECIDED,
+    at_paper_protocol,
+    judge,
+    judge_mean,
+)
 from harness.report.stats import iqm, mean_with_t_ci, probability_of_improvement, sample_std, sign_flip_p_value
 
 
@@ -127,7 +135,7 @@ def claims_table(runs: list[RunRecord], claims=PAPER_CLAIMS) -> pd.DataFrame:
                     "pairs": look.pairs,
                     "look": "" if look.look is None else f"{look.used} pairs",
                     "claimed_change": claim.change,
-                    "measured_change": look.change,
+                    "measured_change": look.estimate,
                     "confidence": look.confidence,
                     "change_ci_low": look.low,
                     "change_ci_high": look.high,
@@ -201,7 +209,7 @@ def lambda_course_table(runs: list[RunRecord]) -> pd.DataFrame:
 
 
 def locomotion_verdict(low: float, high: float, speed: float = LOCOMOTION_SPEED) -> str:
-    """What a 95% CI [low, high] of the seeds' mean forward velocity says: the policies move forward when
+    """What a look's CI [low, high] of the seeds' mean forward velocity says: the policies move forward when
     it lies above ``speed``, do not when it lies below, and it is undecided when it holds ``speed``."""
     if math.isnan(low) or math.isnan(high):
         return "undecided (under 2 seeds)"
@@ -224,18 +232,21 @@ def _paper_locomotion_verdict(claim: LocomotionClaim | None, verdict: str, paper
 
 def locomotion_table(runs: list[RunRecord], claims=PAPER_LOCOMOTION) -> pd.DataFrame:
     """Whether each algorithm's final policies move forward: per setting and algorithm, over the evaluated
-    runs that recorded a forward velocity, the untrained and the final policies' mean velocity (mean over
-    seeds, the final one with its 95% t CI), how many seeds reach :data:`LOCOMOTION_SPEED`, the verdict
-    (:func:`locomotion_verdict`) and, where the paper says whether the algorithm acquires forward
-    locomotion on the task, that claim's verdict."""
+    runs that recorded a forward velocity (in seed order), the untrained policies' mean velocity, the
+    verdict read at the design's looks (:func:`harness.report.sequential.judge_mean` with
+    :func:`locomotion_verdict`: the look's mean and t interval at its level), what the design does next,
+    and, descriptive only, the mean and 95% t CI over every seed and how many seeds reach
+    :data:`LOCOMOTION_SPEED`; where the paper says whether the algorithm acquires forward locomotion on the
+    task, that claim's verdict."""
     recorded = [r for r in runs if r.evaluation is not None and math.isfinite(r.final_forward_velocity)]
     said = {(c.task, c.algo): c for c in claims}
     rows = []
     for (task, backend, num_envs, planned, horizon, algo), members in by_group(recorded).items():
+        members = sorted(members, key=lambda r: r.seed)
         final = np.array([r.final_forward_velocity for r in members], dtype=float)
         untrained = np.array([r.evaluation["initial"].get("mean_forward_velocity", math.nan) for r in members])
+        look = judge_mean(final, locomotion_verdict)
         mean, low, high = mean_with_t_ci(final)
-        verdict = locomotion_verdict(low, high)
         claim = said.get((task, algo))
         rows.append(
             _setting(task, backend, num_envs, planned, horizon)
@@ -244,32 +255,51 @@ def locomotion_table(runs: list[RunRecord], claims=PAPER_LOCOMOTION) -> pd.DataF
                 "algo": algo,
                 "seeds": final.size,
                 "untrained_velocity": float(np.mean(untrained)),
+                "look": "" if look.look is None else f"{look.used} seeds",
+                "confidence": look.confidence,
+                "look_velocity": look.estimate,
+                "look_ci_low": look.low,
+                "look_ci_high": look.high,
+                "verdict": look.verdict,
+                "design": look.state,
+                "seeds_wanted": look.seeds_wanted,
                 "final_velocity": mean,
                 "final_velocity_ci_low": low,
                 "final_velocity_ci_high": high,
                 "seeds_moving": int(np.sum(final >= LOCOMOTION_SPEED)),
-                "verdict": verdict,
                 "paper_says": "" if claim is None else ("moves" if claim.moves else "does not move"),
                 "paper_verdict": _paper_locomotion_verdict(
-                    claim, verdict, at_paper_protocol(num_envs, planned, horizon)
+                    claim, look.verdict, at_paper_protocol(num_envs, planned, horizon)
                 ),
                 "source": "" if claim is None else claim.source,
             }
         )
-    columns = ["task", "backend", "num_envs", "epochs", "horizon", "env_steps", "algo", "seeds"]
-    columns += ["untrained_velocity", "final_velocity", "final_velocity_ci_low", "final_velocity_ci_high"]
-    return pd.DataFrame(rows, columns=columns + ["seeds_moving", "verdict", "paper_says", "paper_verdict", "source"])
+    return pd.DataFrame(rows, columns=LOCOMOTION_COLUMNS)
 
 
-def seeds_wanted(runs: list[RunRecord], claims=PAPER_CLAIMS) -> dict[tuple, int]:
+LOCOMOTION_COLUMNS = [
+    *("task", "backend", "num_envs", "epochs", "horizon", "env_steps", "algo", "seeds", "untrained_velocity"),
+    *("look", "confidence", "look_velocity", "look_ci_low", "look_ci_high", "verdict", "design", "seeds_wanted"),
+    *("final_velocity", "final_velocity_ci_low", "final_velocity_ci_high", "seeds_moving", "paper_says"),
+    *("paper_verdict", "source"),
+]
+
+
+def seeds_wanted(runs: list[RunRecord], claims=PAPER_CLAIMS, locomotion=PAPER_LOCOMOTION) -> dict[tuple, int]:
     """The seeds per algorithm the sequential design asks for, keyed like a run's group (task, backend,
     num_envs, planned epochs, horizon, algo), for every algorithm of a claim judged on ``runs``: the most any
-    of its claims asks for (a base serves several claims; it continues while any of them does). An
-    algorithm none of whose claims has an evaluated pair yet is absent: the caller plans the first look."""
+    of its claims asks for (a base serves several claims; it continues while any of them does), the paper's
+    locomotion claims included. An algorithm none of whose claims has an evaluated run yet is absent: the
+    caller plans the first look."""
     wanted: dict[tuple, int] = {}
     for _, row in claims_table(runs, claims).iterrows():
         setting = (row["task"], row["backend"], row["num_envs"], row["epochs"], row["horizon"])
         for algo in (row["algo"], row["base"]):
             key = (*setting, algo)
+            wanted[key] = max(wanted.get(key, 0), int(row["seeds_wanted"]))
+    said = {(c.task, c.algo) for c in locomotion}
+    for _, row in locomotion_table(runs, locomotion).iterrows():
+        if (row["task"], row["algo"]) in said:
+            key = (row["task"], row["backend"], row["num_envs"], row["epochs"], row["horizon"], row["algo"])
             wanted[key] = max(wanted.get(key, 0), int(row["seeds_wanted"]))
     return wanted

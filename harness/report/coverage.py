@@ -15,6 +15,9 @@ seed 4 did), and lognormal (right-skewed). Procedures:
 - ``log_ratio_t``: the free claims' interval (Fig. 2's gradient-variance levels, Fig. 3's roughness): the
   one-sample t interval of the paired log-ratios, exponentiated (truth: exp E[log variant - log base]);
   on the scenarios whose outcomes are positive (lognormal, the failed-seed mixture).
+- ``sequential_mean``: the forward-locomotion verdict's looks (one algorithm's mean, a one-sample t interval
+  at 5 and 10 seeds, 97.5% each), counted as covering only when both looks hold the true mean; on the
+  base side of the no-effect scenarios.
 
 ``python -m harness.report.coverage OUT_DIR [REPS]`` writes the table as ``coverage.md`` and ``.csv`` with
 provenance; tests/test_coverage.py asserts the claims' procedures within tolerance of nominal and that the
@@ -34,7 +37,7 @@ import pandas as pd
 from scipy import stats
 
 from harness.report.sequential import LOOK_ALPHAS, LOOKS
-from harness.report.stats import iqm_with_ci, paired_ratio_ci, probability_of_improvement_with_ci
+from harness.report.stats import iqm_with_ci, mean_with_t_ci, paired_ratio_ci, probability_of_improvement_with_ci
 
 BASE_MEAN, BASE_STD = 5000.0, 1500.0  # the scale of an Ant return; every statistic here is scale-free
 FAIL_SHARE, FAIL_LEVEL = 0.2, 0.25  # a failed seed: a fifth of seeds, returning a quarter of the others
@@ -167,6 +170,22 @@ def true_iqm(scenario: Scenario) -> float:
     return float(stats.trim_mean(base[0], 0.25))
 
 
+def true_mean(scenario: Scenario) -> float:
+    """The base distribution's mean, by a large draw."""
+    _, base = scenario.draw(np.random.default_rng(54321), 1, 400_000)
+    return float(base.mean())
+
+
+def sequential_mean_covers(values: np.ndarray, truth: float) -> bool:
+    """Whether both looks' one-sample t intervals (each on its first LOOKS[k] values, at 1 - LOOK_ALPHAS[k])
+    hold the true mean: the event that bounds the locomotion verdict's error at any true mean."""
+    for n, alpha in zip(LOOKS, LOOK_ALPHAS, strict=True):
+        _, low, high = mean_with_t_ci(values[:n], 1.0 - alpha)
+        if not low <= truth <= high:
+            return False
+    return True
+
+
 def coverage(scenario: Scenario, procedure: str, n: int, reps: int, seed: int = 0) -> float:
     """The share of ``reps`` synthetic experiments of ``n`` seed pairs whose interval holds the truth."""
     variant, base = scenario.draw(np.random.default_rng(seed), reps, max(n, LOOKS[-1]))
@@ -179,6 +198,9 @@ def coverage(scenario: Scenario, procedure: str, n: int, reps: int, seed: int = 
     elif procedure == "iqm_percentile":
         truth = true_iqm(scenario)
         hits = [iqm_covers(b[:n], truth) for b in base]
+    elif procedure == "sequential_mean":
+        truth = true_mean(scenario)
+        hits = [sequential_mean_covers(b, truth) for b in base]
     elif procedure == "log_ratio_t":
         truth = true_log_ratio(scenario)
         hits = [log_ratio_covers(v[:n], b[:n], truth) for v, b in zip(variant, base, strict=True)]
@@ -197,6 +219,8 @@ def coverage_table(reps: int = 2000) -> pd.DataFrame:
     # the IQM's interval reads one side: the no-effect scenarios cover it
     plan += [(scenario, "iqm_percentile", LOOKS, 0.95) for scenario in scenarios() if scenario.ratio == 1.0]
     plan += [(scenario, "log_ratio_t", (3, *LOOKS), 0.95) for scenario in log_scenarios()]
+    no_effect = [scenario for scenario in scenarios() if scenario.ratio == 1.0]
+    plan += [(scenario, "sequential_mean", (LOOKS[-1],), 1.0 - sum(LOOK_ALPHAS)) for scenario in no_effect]
     for scenario, procedure, counts, nominal in plan:
         for n in counts:
             share = coverage(scenario, procedure, n, reps)

@@ -92,7 +92,8 @@ def protocol_go2(root: Path) -> str:
     pick = [(a, r) for a, r in _setting_rows(root / PROTOCOL / "returns.csv", setting)]
     velocity = dict(_setting_rows(root / PROTOCOL / "returns_locomotion.csv", setting))
     header = ["algorithm (seeds)", "final return IQM [95% CI]", "per seed (untrained)"]
-    header += ["mean forward velocity m/s [95% t CI]", "per seed"]
+    header += ["forward velocity m/s, all seeds' mean [95% t CI] (descriptive)", "per seed"]
+    header += ["moves forward? (the look's mean [t CI])"]
     rows = []
     for algo, row in pick:
         evaluations = _seed_evaluations(root / PROTOCOL / "runs", "go2_newton", algo, "h32")
@@ -107,9 +108,20 @@ def protocol_go2(root: Path) -> str:
             f"{float(v['final_velocity']):.2f} [{float(v['final_velocity_ci_low']):.2f}, "
             f"{float(v['final_velocity_ci_high']):.2f}]",
             speeds,
+            _locomotion_look(v),
         ]
         rows.append(cells)
     return "\n".join(markdown_table(header, rows))
+
+
+def _locomotion_look(row: dict) -> str:
+    """The locomotion verdict at its look (docs/statistics.md): the verdict, the look, its mean and interval."""
+    if not row["look"]:
+        return f"{row['verdict']}"
+    level = f"{100 * float(row['confidence']):g}%"
+    interval = f"[{float(row['look_ci_low']):.2f}, {float(row['look_ci_high']):.2f}]"
+    look = row["look"].replace(" seeds", "-seed")
+    return f"{row['verdict']} ({look} look: {float(row['look_velocity']):.2f} {interval}, {level})"
 
 
 def _setting_rows(path: Path, setting: dict) -> list[tuple[str, dict]]:

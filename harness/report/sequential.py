@@ -17,11 +17,12 @@ seeds), so it cannot raise an error rate.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-from harness.report.stats import paired_ratio_bounds, paired_ratio_ci
+from harness.report.stats import mean_with_t_ci, paired_ratio_bounds, paired_ratio_ci
 
 #: the looks: seed pairs at which a claim is judged (the second is the paper's 10 seeds)
 LOOKS = (5, 10)
@@ -99,10 +100,10 @@ class Look:
     """A claim judged at one look of the design: the pairs it read, its estimate and interval, the verdict,
     and what the design does next (``state``)."""
 
-    pairs: int  # seed pairs available (both algorithms evaluated)
+    pairs: int  # seed pairs available (both algorithms evaluated), or seeds for one algorithm's mean
     look: int | None  # index into LOOKS of the look judged; None before the first
     used: int  # pairs the look read (its own count: pairs beyond it wait for the next look)
-    change: float
+    estimate: float  # the estimand at the look: the relative change of the mean, or a mean
     low: float
     high: float
     confidence: float
@@ -140,3 +141,33 @@ def judge(variant: np.ndarray, base: np.ndarray, claimed: float, paper_protocol:
     if futile(variant[:n], base[:n], claimed, k, paper_protocol):
         return Look(pairs, k, n, change, low, high, confidence, f"{UNDECIDED} (futile)", "futile")
     return Look(pairs, k, n, change, low, high, confidence, said, "continue")
+
+
+def judge_mean(values: np.ndarray, verdict_of: Callable[[float, float], str]) -> Look:
+    """The same looks for a claim about one algorithm's mean (the forward-locomotion verdict, docs/statistics.md):
+    at each look reached, the one-sample t interval of the look's first values (seed order) at the look's level,
+    read by ``verdict_of(low, high)`` (any word but one starting "undecided" decides); a verdict reached keeps
+    its look. No futility stop. Before the first look: the 95% interval of every value, for description only."""
+    values = np.asarray(values, dtype=float)
+    reached = [k for k, n in enumerate(LOOKS) if values.size >= n]
+    if not reached:
+        mean, low, high = mean_with_t_ci(values)
+        return Look(
+            values.size,
+            None,
+            values.size,
+            mean,
+            low,
+            high,
+            0.95,
+            f"{UNDECIDED} (before the first look)",
+            "before first look",
+        )
+    for k in reached:
+        n, confidence = LOOKS[k], 1.0 - LOOK_ALPHAS[k]
+        mean, low, high = mean_with_t_ci(values[:n], confidence)
+        said = verdict_of(low, high)
+        if not said.startswith(UNDECIDED):
+            return Look(values.size, k, n, mean, low, high, confidence, said, "decided")
+    state = "last look" if k == len(LOOKS) - 1 else "continue"
+    return Look(values.size, k, n, mean, low, high, confidence, said, state)

@@ -69,9 +69,9 @@ def iqm_with_ci(values: Iterable[float]) -> tuple[float, float, float]:
     return point, *_percentile_ci((x,), _iqm_along)
 
 
-def _t_critical(dof: float) -> float:
-    """The two-sided critical value of Student's t at ``CONFIDENCE`` with ``dof`` degrees of freedom."""
-    return float(stats.t.ppf(1.0 - (1.0 - CONFIDENCE) / 2.0, dof))
+def _t_critical(dof: float, confidence: float = CONFIDENCE) -> float:
+    """The two-sided critical value of Student's t at ``confidence`` with ``dof`` degrees of freedom."""
+    return float(stats.t.ppf(1.0 - (1.0 - confidence) / 2.0, dof))
 
 
 # -- the paired design (seed s of every algorithm: the same initial policy and environments) ------------
@@ -132,16 +132,16 @@ def sign_flip_p_value(differences: Iterable[float]) -> float:
     return float(np.mean(means >= abs(d.mean()) - 1e-12 * max(1.0, abs(d.mean()))))
 
 
-def mean_with_t_ci(values: Iterable[float]) -> tuple[float, float, float]:
-    """The mean with the 95% CI of a one-sample t-test, mean +- t_0.975(n - 1) s / sqrt(n); NaN bounds under
-    2 values."""
+def mean_with_t_ci(values: Iterable[float], confidence: float = CONFIDENCE) -> tuple[float, float, float]:
+    """The mean with the CI of a one-sample t-test at ``confidence`` (95% by default), mean +- t(n - 1) s /
+    sqrt(n); NaN bounds under 2 values."""
     x = np.asarray(list(values), dtype=float)
     if not x.size:
         return (math.nan,) * 3
     mean = float(x.mean())
     if x.size < 2:
         return mean, math.nan, math.nan
-    margin = _t_critical(x.size - 1) * float(x.std(ddof=1)) / math.sqrt(x.size)
+    margin = _t_critical(x.size - 1, confidence) * float(x.std(ddof=1)) / math.sqrt(x.size)
     return mean, mean - margin, mean + margin
 
 

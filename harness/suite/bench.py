@@ -560,12 +560,16 @@ def _sequential_design(data: dict, blocks: list[list[tuple[int, RunSpec]]], runs
         if (job.run_dir / EVALUATION).is_file() and (record := load_run(job.run_dir)) is not None:
             if record.evaluation is not None:
                 records[key] = record
-    designs: dict[tuple, tuple] = {}  # hyperparameters -> (seeds wanted by group, the claims table or None)
+    designs: dict[tuple, tuple] = {}  # hyperparameters -> (seeds wanted by group, claims and locomotion tables)
 
     def design(hyperparameters: tuple) -> tuple:
         if hyperparameters not in designs:
             mine = [r for key, r in records.items() if jobs[key].run.hyperparameters == hyperparameters]
-            designs[hyperparameters] = (paper.seeds_wanted(mine), paper.claims_table(mine)) if mine else ({}, None)
+            designs[hyperparameters] = (
+                (paper.seeds_wanted(mine), paper.claims_table(mine), paper.locomotion_table(mine))
+                if mine
+                else ({}, None, None)
+            )
         return designs[hyperparameters]
 
     def wanted(run: RunSpec) -> int:
@@ -587,27 +591,7 @@ def _sequential_design(data: dict, blocks: list[list[tuple[int, RunSpec]]], runs
         for (setting, hyperparameters), by_algo in settings.items():
             task, backend, num_envs, epochs, horizon = setting
             where = f"{backend}, N {num_envs}, h {horizon}, {epochs} epochs"
-            table = design(hyperparameters)[1]
-            rows = [] if table is None else [row for _, row in table.iterrows()]
-            for claim in paper.PAPER_CLAIMS:
-                if claim.task != task or claim.algo not in by_algo or claim.base not in by_algo:
-                    continue
-                what = f"{claim.algo} vs {claim.base}" + ("" if claim.metric == "return" else f" ({claim.metric})")
-                found = [
-                    row
-                    for row in rows
-                    if (row["task"], row["backend"], row["num_envs"], row["epochs"], row["horizon"]) == setting
-                    and (row["algo"], row["base"], row["metric"]) == (claim.algo, claim.base, claim.metric)
-                ]
-                if found:
-                    row = found[0]
-                    pairs = int(row["pairs"])
-                    said = [f"{pairs} pair{'' if pairs == 1 else 's'}", str(row["verdict"])]
-                    said += [] if row["design"] == "before first look" else [str(row["design"])]
-                    why = f"{', '.join(said)} -> {int(row['seeds_wanted'])} seeds"
-                else:
-                    why = f"no evaluated pair yet -> {LOOKS[0]} seeds"
-                lines.append(f"sequential: {task} {what} ({where}): {why}")
+            lines += _claim_lines(setting, by_algo, *design(hyperparameters)[1:])
             counts, beyond = [], 0
             for algo, ranked in by_algo.items():
                 counts.append(f"{algo} {sum(keep(i, rank, run) for rank, run in ranked)}")
@@ -889,3 +873,42 @@ class _Analyses:
                     )
                 )
         return jobs
+
+
+def _claim_lines(setting: tuple, by_algo: dict, claims, locomotion) -> list[str]:
+    """One line per paper claim a sequential block's setting tests (its algorithms are in ``by_algo``): what
+    the design read (``claims`` and ``locomotion``: the report's tables of the block's runs, None before any
+    is evaluated) and the seeds it asks for."""
+    from harness.report import claims as paper
+    from harness.report.sequential import LOOKS
+
+    task, backend, num_envs, epochs, horizon = setting
+    where = f"{backend}, N {num_envs}, h {horizon}, {epochs} epochs"
+
+    def rows(table, columns: tuple, values: tuple) -> list:
+        """The table's rows at the setting whose ``columns`` hold ``values``."""
+        if table is None:
+            return []
+        keys = ("task", "backend", "num_envs", "epochs", "horizon", *columns)
+        return [r for _, r in table.iterrows() if tuple(r[k] for k in keys) == (*setting, *values)]
+
+    def why(found: list, unit: str) -> str:
+        if not found:
+            return f"no evaluated {unit} yet -> {LOOKS[0]} seeds"
+        row = found[0]
+        count = int(row["pairs" if unit == "pair" else "seeds"])
+        said = [f"{count} {unit}{'' if count == 1 else 's'}", str(row["verdict"])]
+        said += [] if row["design"] == "before first look" else [str(row["design"])]
+        return f"{', '.join(said)} -> {int(row['seeds_wanted'])} seeds"
+
+    lines = []
+    for claim in paper.PAPER_CLAIMS:
+        if claim.task == task and claim.algo in by_algo and claim.base in by_algo:
+            what = f"{claim.algo} vs {claim.base}" + ("" if claim.metric == "return" else f" ({claim.metric})")
+            found = rows(claims, ("algo", "base", "metric"), (claim.algo, claim.base, claim.metric))
+            lines.append(f"sequential: {task} {what} ({where}): {why(found, 'pair')}")
+    for said in paper.PAPER_LOCOMOTION:
+        if said.task == task and said.algo in by_algo:
+            found = rows(locomotion, ("algo",), (said.algo,))
+            lines.append(f"sequential: {task} {said.algo} moves forward? ({where}): {why(found, 'seed')}")
+    return lines
