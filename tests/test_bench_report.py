@@ -437,6 +437,13 @@ def test_the_lambda_verdict_reads_its_ci_against_zero(low, high, verdict):
     assert lambda_course_verdict(low, high) == verdict
 
 
+def test_a_rising_lambda_below_the_papers_protocol_is_not_confirmed_rather_than_contradicted():
+    from harness.report.claims import lambda_course_verdict
+
+    assert lambda_course_verdict(0.01, 0.05, paper_protocol=False) == "not confirmed at this budget (rises)"
+    assert lambda_course_verdict(-0.05, -0.01, paper_protocol=False) == "confirmed (falls)"
+
+
 @pytest.mark.parametrize(
     ("low", "high", "at_paper", "said"),
     [

@@ -496,7 +496,8 @@ def _returns_notes() -> list[str]:
         "(docs/statistics.md). Where the paper says whether an "
         "algorithm acquires forward locomotion on a task (Sec. V-E: the Go2's SHAC does not, at the "
         "paper's budget; its SHAC-TDAdpt improves on that markedly), the claim is confirmed when the "
-        "verdict agrees, contradicted when it disagrees.",
+        "verdict agrees, contradicted when it disagrees at the paper's protocol (N 64, h 32, 2000 epochs), "
+        "not confirmed at this budget when it disagrees below it, undecided while the verdict is.",
         "Runs without eval.json (unfinished) are left out of these tables.",
     ]
 
