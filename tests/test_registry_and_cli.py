@@ -68,6 +68,11 @@ def test_cli_list():
         (["throughput", "--backend", "newton", "--task", "ant", "--num-envs", "-3"], "an integer in [1, 65536]"),
         (["gradcheck", "--backend", "newton", "--task", "ant", "--tolerance", "nan"], "positive finite"),
         (["fly"], "invalid choice"),
+        (["throughput", "--backend", "newton", "--task", "ant", "--against", "bullet"], "unknown backend 'bullet'"),
+        (
+            ["throughput", "--backend", "mujoco_warp", "--task", "ant", "--against", "newton", "--grad-cost-only", "4"],
+            "cannot go with --grad-cost-only",
+        ),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(args, needle, capsys):
@@ -90,6 +95,37 @@ def test_throughput_verb_writes_a_result_with_its_command(tmp_path):
     assert result["overhead_ratio"] > 0
     assert payload["provenance"]["command"].startswith("python -m harness throughput --backend newton")
     assert payload["provenance"]["packages"]["newton"] == "1.8.0"
+
+
+def test_throughput_against_another_backend_times_both_in_turn_and_reports_the_ratio_of_medians(monkeypatch):
+    """``--against``: the two adapters' windows alternate (the first round's order flipped in the next), and
+    the reported share is the ratio of the median window times, with the rounds' own ratios as its range."""
+    from harness.checks import throughput
+
+    class Fake:
+        def __init__(self, name, seconds):
+            self.name, self.integrator, self.num_envs, self.seconds, self.calls = name, "fake", 4, seconds, 0
+
+    order = []
+
+    def window(sim, horizon, grad, gen):
+        assert grad  # the comparison is of steps with gradients
+        order.append(sim.name)
+        sim.calls += 1
+        return sim.seconds[(sim.calls - 1) % len(sim.seconds)]
+
+    monkeypatch.setattr(throughput, "_window", window)
+    slow = Fake("slow", [4.0, 4.0, 4.0, 8.0, 4.0, 2.0])  # two warm-ups, then rounds of 4, 8, 4, 2 s
+    fast = Fake("fast", [1.0, 1.0, 1.0, 1.0, 2.0, 1.0])  # two warm-ups, then rounds of 1, 1, 2, 1 s
+    result = throughput.compare(slow, fast, horizon=8, rounds=4)
+    assert order[4:] == ["slow", "fast", "fast", "slow", "slow", "fast", "fast", "slow"]
+    assert result["backend"] == "fast" and result["rounds"] == 4
+    assert result["speed_ratio"] == pytest.approx(1.0 / 4.0)  # medians 4 s and 1 s
+    assert (result["speed_ratio_min"], result["speed_ratio_max"]) == pytest.approx((1.0 / 8.0, 1.0 / 2.0))
+    assert result["own_forward_backward_steps_per_s_median"] == pytest.approx(4 * 8 / 4.0)
+    assert result["forward_backward_steps_per_s_median"] == pytest.approx(4 * 8 / 1.0)
+    line = throughput.summary({"forward_steps_per_s": 10.0, "forward_backward_steps_per_s": 2.0, "against": result}, "")
+    assert "0.25 of fast's speed with gradients, same process" in line
 
 
 @pytest.mark.parametrize(

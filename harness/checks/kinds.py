@@ -22,7 +22,7 @@ from harness.bounds import (
     MAX_STRIDE,
     MAX_WORLDS,
 )
-from harness.words import int_in, positive_float_up_to
+from harness.words import int_in, one_line, positive_float_up_to
 
 
 @dataclass(frozen=True)
@@ -141,6 +141,16 @@ KINDS: dict[str, CheckKind] = {
             },
             defaults={"num_envs": 64, "horizon": 32, "windows": 5},
             own_flags=(
+                (
+                    "--against",
+                    {
+                        "type": one_line,
+                        "metavar": "BACKEND",
+                        "help": "also time BACKEND (its default options; same task, envs and seed) window by window "
+                        "in this process, alternating, and report this adapter's speed with gradients as a share "
+                        "of BACKEND's",
+                    },
+                ),
                 (
                     "--grad-cost-only",
                     {

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import statistics
 import time
 from dataclasses import asdict, dataclass
 
@@ -132,17 +133,53 @@ def measure(sim: BatchedSim, horizon: int = 32, windows: int = 5, seed: int = 0,
     )
 
 
+def compare(sim: BatchedSim, other: BatchedSim, horizon: int = 32, rounds: int = 5, seed: int = 0) -> dict:
+    """Two adapters' forward+backward windows timed in one process, round by round, the order flipping
+    each round, so both see the same machine while its load moves (after ``WARMUP_WINDOWS`` each):
+    each one's median rate, and ``sim``'s speed as a share of ``other``'s, the ratio of the two medians,
+    with the range of the rounds' own ratios."""
+    gen = torch.Generator().manual_seed(seed)
+    for _ in range(WARMUP_WINDOWS):
+        _window(sim, horizon, True, gen)
+        _window(other, horizon, True, gen)
+    mine, theirs = [], []
+    for k in range(rounds):
+        pair = (sim, other) if k % 2 == 0 else (other, sim)
+        seconds = {id(s): _window(s, horizon, True, gen) for s in pair}
+        mine.append(seconds[id(sim)])
+        theirs.append(seconds[id(other)])
+    steps = sim.num_envs * horizon
+    ratios = [t / m for m, t in zip(mine, theirs, strict=True)]
+    return {
+        "backend": other.name,
+        "integrator": other.integrator,
+        "rounds": rounds,
+        "own_forward_backward_steps_per_s_median": steps / statistics.median(mine),
+        "forward_backward_steps_per_s_median": steps / statistics.median(theirs),
+        "speed_ratio": statistics.median(theirs) / statistics.median(mine),
+        "speed_ratio_min": min(ratios),
+        "speed_ratio_max": max(ratios),
+    }
+
+
 # -- the verb and its line in the suite's checks table ---------------------------------------------
 
 
 def verb(args) -> int:
-    """``python -m harness throughput``: forward-only and forward+backward env-steps/s, and the bare engine."""
-    from harness.inputs import make_verb_sim, preflight, sim_physics
+    """``python -m harness throughput``: forward-only and forward+backward env-steps/s, and the bare engine;
+    with ``--against B``, also this adapter's speed with gradients as a share of backend B's (default
+    options), the two timed window by window in this process."""
+    from harness.inputs import BadInput, make_verb_sim, preflight, sim_physics
     from harness.results import write_check
 
     memory = (args.num_envs, 0 if args.grad_cost_only else args.horizon)
-    preflight(backends=args.backend, task=args.task, device=args.device, out=args.out, memory=memory)
+    against = getattr(args, "against", None)
+    if against and args.grad_cost_only:
+        raise BadInput("--against times full windows with gradients: it cannot go with --grad-cost-only")
+    names = [args.backend] + ([against] if against else [])
+    preflight(backends=names, task=args.task, device=args.device, out=args.out, memory=memory)
     sim = make_verb_sim(args, horizon=args.horizon)
+    other = _against_sim(args, against) if against else None
     print(
         f"throughput {args.backend}/{args.task} (preset {sim.task.preset_label}, {sim.integrator}): "
         f"{args.num_envs} envs, windows of {args.horizon} steps",
@@ -160,10 +197,25 @@ def verb(args) -> int:
     if result.bare_engine_steps_per_s is not None:
         print(f"  bare engine:         {result.bare_engine_steps_per_s:10.0f} env-steps/s (forward + backward)")
         print(f"  adapter / bare time: {result.overhead_ratio:10.3f} (forward + backward)")
+    payload = {**result.as_dict(), **sim_physics(sim), "backend_options": dict(args.backend_option or [])}
+    if other is not None:
+        payload["against"] = compare(sim, other, horizon=args.horizon, rounds=args.windows, seed=args.seed)
+        print(
+            f"  against {against}:  {payload['against']['speed_ratio']:10.3f} of its speed with gradients "
+            f"(rounds {payload['against']['speed_ratio_min']:.3f}-{payload['against']['speed_ratio_max']:.3f})"
+        )
     if args.out:
-        path = write_check(args.out, "throughput", {**result.as_dict(), **sim_physics(sim)})
-        print(f"wrote {path}")
+        print(f"wrote {write_check(args.out, 'throughput', payload)}")
     return 0
+
+
+def _against_sim(args, backend: str) -> BatchedSim:
+    """The ``--against`` backend on the same task, preset, envs, device and seed, with its default options."""
+    from argparse import Namespace
+
+    from harness.inputs import make_verb_sim
+
+    return make_verb_sim(Namespace(**{**vars(args), "backend": backend, "backend_option": []}), horizon=args.horizon)
 
 
 def _grad_cost_only(sim, args) -> int:
@@ -200,4 +252,8 @@ def summary(result: dict, kind: str) -> str:
     from harness.formatting import fmt
 
     with_grad = result.get("forward_backward_steps_per_s", result.get("forward_backward_steps_per_s_estimated"))
-    return f"{fmt(result.get('forward_steps_per_s'))} env-steps/s forward, {fmt(with_grad)} with gradients"
+    line = f"{fmt(result.get('forward_steps_per_s'))} env-steps/s forward, {fmt(with_grad)} with gradients"
+    against = result.get("against")
+    if against:
+        line += f"; {fmt(against['speed_ratio'])} of {against['backend']}'s speed with gradients, same process"
+    return line

@@ -694,6 +694,7 @@ def throughput_document(checks: list[CheckRecord]) -> Table:
                     ("adapter/bare time, forward", "forward_overhead_ratio"),
                     ("adapter/bare time, forward+backward", "overhead_ratio"),
                     ("gradient cost factor", "gradient_cost_factor"),
+                    ("speed with gradients, as a share of (same process)", _against),
                 ],
                 empty="no throughput check",
             )
@@ -701,10 +702,20 @@ def throughput_document(checks: list[CheckRecord]) -> Table:
         [
             "env-steps/s = envs x steps / seconds, best of the timed windows (harness/checks/throughput.py). "
             "adapter/bare: time through this project's adapter over the engine's own loop (1.0 = no overhead). "
-            "Estimated: `throughput --grad-cost-only` (finite-difference worlds timed, not a full step)."
+            "Estimated: `throughput --grad-cost-only` (finite-difference worlds timed, not a full step). "
+            "Share of another backend: `throughput --against B`, the two adapters' windows with gradients timed "
+            "in one process, alternating; the ratio of their median times, with the range of the rounds' ratios."
         ],
         commit_counts(c.provenance.get("git_commit") for c in throughput_checks),
     )
+
+
+def _against(row) -> str:
+    """A throughput row's speed with gradients as a share of another backend's, timed in the same process."""
+    if is_missing(row["against"]):
+        return ""
+    rounds = f"{fmt(row['speed_ratio_min'])}-{fmt(row['speed_ratio_max'])}"
+    return f"{fmt(row['speed_ratio'])} of {row['against']} (rounds {rounds})"
 
 
 def backends_document(runs: list[RunRecord]) -> Table:

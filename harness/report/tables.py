@@ -13,6 +13,7 @@ from harness.report.records import (
     SIM_TO_SIM_PREFIXES,
     CheckRecord,
     RunRecord,
+    backend_label,
     base_algo,
     by_group,
     group_runs,
@@ -390,10 +391,11 @@ def throughput_table(checks: list[CheckRecord]) -> pd.DataFrame:
         measured = r.get("forward_backward_steps_per_s")
         estimated = r.get("forward_backward_steps_per_s_estimated")  # `throughput --grad-cost-only`
         peer = check.kind == "peer"
+        against = r.get("against") or {}
         rows.append(
             {
                 "file": check.path.name,
-                "backend": f"{r.get('peer')} (peer)" if peer else r.get("backend"),
+                "backend": f"{r.get('peer')} (peer)" if peer else backend_label(str(r.get("backend")), r),
                 "integrator": r.get("integrator"),
                 "task": r.get("task"),
                 "num_envs": r.get("num_envs"),
@@ -407,6 +409,10 @@ def throughput_table(checks: list[CheckRecord]) -> pd.DataFrame:
                 "forward_overhead_ratio": r.get("forward_overhead_ratio"),
                 "overhead_ratio": r.get("overhead_ratio"),
                 "gradient_cost_factor": r.get("gradient_cost_factor"),
+                "against": against.get("backend"),
+                "speed_ratio": against.get("speed_ratio"),
+                "speed_ratio_min": against.get("speed_ratio_min"),
+                "speed_ratio_max": against.get("speed_ratio_max"),
             }
         )
     columns = [
@@ -425,6 +431,10 @@ def throughput_table(checks: list[CheckRecord]) -> pd.DataFrame:
         "forward_overhead_ratio",
         "overhead_ratio",
         "gradient_cost_factor",
+        "against",
+        "speed_ratio",
+        "speed_ratio_min",
+        "speed_ratio_max",
     ]
     rows.sort(key=lambda r: (rank(str(r["task"])), rank(str(r["backend"])), r["num_envs"] or 0, r["file"]))
     return pd.DataFrame(rows, columns=columns)
