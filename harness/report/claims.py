@@ -294,14 +294,20 @@ def seeds_wanted(runs: list[RunRecord], claims=PAPER_CLAIMS, locomotion=PAPER_LO
     of its claims asks for (a base serves several claims; it continues while any of them does), the paper's
     locomotion claims included. An algorithm none of whose claims has an evaluated run yet is absent: the
     caller plans the first look."""
+    return seeds_wanted_of(claims_table(runs, claims), locomotion_table(runs, locomotion), locomotion)
+
+
+def seeds_wanted_of(claims: pd.DataFrame, moving: pd.DataFrame, locomotion=PAPER_LOCOMOTION) -> dict[tuple, int]:
+    """:func:`seeds_wanted` from tables already made: ``claims`` (:func:`claims_table`) and ``moving``
+    (:func:`locomotion_table`, whose rows count only for the algorithms ``locomotion`` names)."""
     wanted: dict[tuple, int] = {}
-    for _, row in claims_table(runs, claims).iterrows():
+    for _, row in claims.iterrows():
         setting = (row["task"], row["backend"], row["num_envs"], row["epochs"], row["horizon"])
         for algo in (row["algo"], row["base"]):
             key = (*setting, algo)
             wanted[key] = max(wanted.get(key, 0), int(row["seeds_wanted"]))
     said = {(c.task, c.algo) for c in locomotion}
-    for _, row in locomotion_table(runs, locomotion).iterrows():
+    for _, row in moving.iterrows():
         if (row["task"], row["algo"]) in said:
             key = (row["task"], row["backend"], row["num_envs"], row["epochs"], row["horizon"], row["algo"])
             wanted[key] = max(wanted.get(key, 0), int(row["seeds_wanted"]))

@@ -164,16 +164,20 @@ def log_scenarios() -> list[Scenario]:
     return [make(effect) for effect in (0.0, 0.5) for make in (lognormal, rough_outliers)]
 
 
+def _large_base_draw(scenario: Scenario) -> np.ndarray:
+    """400,000 draws of the base side (a fixed generator), from which its true statistics are read."""
+    _, base = scenario.draw(np.random.default_rng(54321), 1, 400_000)
+    return base[0]
+
+
 def true_iqm(scenario: Scenario) -> float:
     """The base distribution's interquartile mean, by a large draw."""
-    _, base = scenario.draw(np.random.default_rng(54321), 1, 400_000)
-    return float(stats.trim_mean(base[0], 0.25))
+    return float(stats.trim_mean(_large_base_draw(scenario), 0.25))
 
 
 def true_mean(scenario: Scenario) -> float:
     """The base distribution's mean, by a large draw."""
-    _, base = scenario.draw(np.random.default_rng(54321), 1, 400_000)
-    return float(base.mean())
+    return float(_large_base_draw(scenario).mean())
 
 
 def sequential_mean_covers(values: np.ndarray, truth: float) -> bool:

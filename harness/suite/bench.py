@@ -565,11 +565,11 @@ def _sequential_design(data: dict, blocks: list[list[tuple[int, RunSpec]]], runs
     def design(hyperparameters: tuple) -> tuple:
         if hyperparameters not in designs:
             mine = [r for key, r in records.items() if jobs[key].run.hyperparameters == hyperparameters]
-            designs[hyperparameters] = (
-                (paper.seeds_wanted(mine), paper.claims_table(mine), paper.locomotion_table(mine))
-                if mine
-                else ({}, None, None)
-            )
+            if mine:
+                tables = (paper.claims_table(mine), paper.locomotion_table(mine))
+                designs[hyperparameters] = (paper.seeds_wanted_of(*tables), *tables)
+            else:
+                designs[hyperparameters] = ({}, None, None)
         return designs[hyperparameters]
 
     def wanted(run: RunSpec) -> int:
