@@ -242,38 +242,10 @@ def sim_info(env) -> dict:
     return info
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = parse_args(argv)
-    os.environ.setdefault("WARP_CACHE_PATH", DEFAULT_WARP_CACHE)
-    if os.environ.get("OMP_NUM_THREADS") is None:
-        print("warning: OMP_NUM_THREADS is not set; the project's measurements use OMP_NUM_THREADS=1", file=sys.stderr)
-
-    import torch
-    import warp as wp
-
-    try:
-        import rewarped  # noqa: F401  (patches warp.sim and calls wp.init())
-    except ImportError as e:
-        sys.exit(f"rewarped is not importable ({e}); run this with the venv from benchmarks/peers/README.md")
-
-    torch.manual_seed(args.seed)  # Rewarped's randomize_init draws from torch's global generator
-    gen = torch.Generator().manual_seed(args.seed + 1)  # actions
-    loadavg_start = os.getloadavg()
-
-    t0 = time.perf_counter()
-    env, class_path, env_kwargs = build_env(args, no_grad=False)
-    build_s = time.perf_counter() - t0
-    assert env.requires_grad and env.model.requires_grad
-    info = sim_info(env)
-
-    steps = args.num_envs * args.horizon
-    reset_between = not args.no_reset_between_windows
-
-    def after_window(e, grad: bool) -> None:
-        if reset_between:
-            e.reset(clear_grad=grad)
-
-    # Warm-up (kernel compilation on first launch), one window of each kind.
+def time_windows(env, args: argparse.Namespace, gen, after_window) -> tuple[dict, dict, list, dict, dict]:
+    """One warm-up window of each kind (Warp compiles kernels on first launch), then W windows of each kind,
+    interleaved: (seconds per kind, resets per kind, the timed windows' gradient checks, warm-up seconds,
+    the warm-up's gradient check)."""
     warm = {}
     warm["forward"], _ = forward_window(env, args.horizon, gen)
     after_window(env, True)
@@ -302,32 +274,73 @@ def main(argv: list[str] | None = None) -> int:
             f"action-gradient norm {check['action_grad_norm']:.6g} (finite {check['action_grad_finite']}, "
             f"non-zero fraction {check['action_grad_nonzero_fraction']:.3f}), resets in window {r}"
         )
+    return times, resets, checks, warm, warm_check
 
-    nograd = None
-    if args.nograd_env:
-        enable_backward = wp.config.enable_backward
-        t1 = time.perf_counter()
-        env_ng, _, _ = build_env(args, no_grad=True)
-        nograd_build_s = time.perf_counter() - t1
-        wp.config.enable_backward = enable_backward  # WarpEnv.__init__ sets it globally from no_grad
-        warm_ng, _ = forward_window(env_ng, args.horizon, gen)
+
+def time_nograd_env(args: argparse.Namespace, gen, after_window) -> dict:
+    """``--nograd-env``: forward windows on a second env built in Rewarped's no_grad=True mode."""
+    import warp as wp
+
+    enable_backward = wp.config.enable_backward
+    t1 = time.perf_counter()
+    env_ng, _, _ = build_env(args, no_grad=True)
+    nograd_build_s = time.perf_counter() - t1
+    wp.config.enable_backward = enable_backward  # WarpEnv.__init__ sets it globally from no_grad
+    warm_ng, _ = forward_window(env_ng, args.horizon, gen)
+    after_window(env_ng, False)
+    ng_times, ng_resets = [], 0
+    for _ in range(args.windows):
+        sec, r = forward_window(env_ng, args.horizon, gen)
         after_window(env_ng, False)
-        ng_times, ng_resets = [], 0
-        for _ in range(args.windows):
-            sec, r = forward_window(env_ng, args.horizon, gen)
-            after_window(env_ng, False)
-            ng_times.append(sec)
-            ng_resets += r
-        nograd = {
-            "steps_per_s": steps / min(ng_times),
-            "window_seconds": ng_times,
-            "warmup_seconds": warm_ng,
-            "env_build_seconds": nograd_build_s,
-            "resets": ng_resets,
-        }
+        ng_times.append(sec)
+        ng_resets += r
+    return {
+        "steps_per_s": args.num_envs * args.horizon / min(ng_times),
+        "window_seconds": ng_times,
+        "warmup_seconds": warm_ng,
+        "env_build_seconds": nograd_build_s,
+        "resets": ng_resets,
+    }
 
-    fwd = steps / min(times["forward"])
-    fwd_bwd = steps / min(times["forward_backward"])
+
+def reset_handling(reset_between: bool) -> str:
+    """How Rewarped's automatic resets are treated in the timed windows (recorded in the result)."""
+    return (
+        "Rewarped auto-resets inside env.step (truncation at episode_length; Ant early termination below "
+        "0.27 m). Resets are kept, timed and counted. A reset builds a fresh Warp state whose tensors are "
+        "new leaves (values of non-reset envs are copied in without a graph), so it cuts the gradient path "
+        "of all envs (not only the reset ones) between the steps before and after it. The backward pass "
+        "still runs over every step taken; the loss term of a reset step uses the pre-reset state of that "
+        "step (captured by wrapping env.reset during the window), so no step's loss is lost. "
+        + (
+            "All envs are reset after every window, outside the timer."
+            if reset_between
+            else "No reset between windows (rolling on)."
+        )
+    )
+
+
+def machine() -> dict:
+    """The machine, interpreter and threads the timings were taken on."""
+    import torch
+    import warp as wp
+
+    return {
+        "packages": package_versions(),
+        "command": shlex.join([sys.executable, *sys.argv]),
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+        "cpu_model": cpu_model(),
+        "cpu_count": os.cpu_count(),
+        "cpu_affinity": len(os.sched_getaffinity(0)),
+        "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),
+        "torch_num_threads": torch.get_num_threads(),
+        "warp_device": str(wp.get_device("cpu")),
+        "warp_kernel_cache": wp.config.kernel_cache_dir,
+    }
+
+
+def print_summary(args: argparse.Namespace, class_path: str, info: dict, fwd: float, fwd_bwd: float, nograd) -> None:
     print(f"{args.env} ({class_path}), {args.num_envs} envs x {args.horizon} steps, best of {args.windows}:")
     print(f"  forward (torch.no_grad, grad-enabled env): {fwd:.1f} env-steps/s")
     print(f"  forward+backward:                          {fwd_bwd:.1f} env-steps/s")
@@ -337,9 +350,45 @@ def main(argv: list[str] | None = None) -> int:
         f"  sim: {info['integrator_type']} integrator, {info['sim_substeps']} substeps, sim_dt {info['sim_dt']:.6g} s"
     )
 
-    all_checks = [warm_check, *checks]
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    os.environ.setdefault("WARP_CACHE_PATH", DEFAULT_WARP_CACHE)
+    if os.environ.get("OMP_NUM_THREADS") is None:
+        print("warning: OMP_NUM_THREADS is not set; the project's measurements use OMP_NUM_THREADS=1", file=sys.stderr)
+
+    import torch
+
+    try:
+        import rewarped  # noqa: F401  (patches warp.sim and calls wp.init())
+    except ImportError as e:
+        sys.exit(f"rewarped is not importable ({e}); run this with the venv from benchmarks/peers/README.md")
+
+    torch.manual_seed(args.seed)  # Rewarped's randomize_init draws from torch's global generator
+    gen = torch.Generator().manual_seed(args.seed + 1)  # actions
+    loadavg_start = os.getloadavg()
+
+    t0 = time.perf_counter()
+    env, class_path, env_kwargs = build_env(args, no_grad=False)
+    build_s = time.perf_counter() - t0
+    assert env.requires_grad and env.model.requires_grad
+    info = sim_info(env)
+    reset_between = not args.no_reset_between_windows
+
+    def after_window(e, grad: bool) -> None:
+        if reset_between:
+            e.reset(clear_grad=grad)
+
+    times, resets, checks, warm, warm_check = time_windows(env, args, gen, after_window)
+    nograd = time_nograd_env(args, gen, after_window) if args.nograd_env else None
+    steps = args.num_envs * args.horizon
+    fwd = steps / min(times["forward"])
+    fwd_bwd = steps / min(times["forward_backward"])
+    print_summary(args, class_path, info, fwd, fwd_bwd, nograd)
+
     grads_ok = all(
-        c["action_grad_finite"] and c["action_grad_norm"] is not None and c["action_grad_norm"] > 0 for c in all_checks
+        c["action_grad_finite"] and c["action_grad_norm"] is not None and c["action_grad_norm"] > 0
+        for c in (warm_check, *checks)
     )
     result = {
         "env": args.env,
@@ -368,37 +417,14 @@ def main(argv: list[str] | None = None) -> int:
         "reset_between_windows": reset_between,
         "resets_in_timed_windows": resets,
         "graph_cut": GRAPH_CUT,
-        "reset_handling": (
-            "Rewarped auto-resets inside env.step (truncation at episode_length; Ant early termination below "
-            "0.27 m). Resets are kept, timed and counted. A reset builds a fresh Warp state whose tensors are "
-            "new leaves (values of non-reset envs are copied in without a graph), so it cuts the gradient path "
-            "of all envs (not only the reset ones) between the steps before and after it. The backward pass "
-            "still runs over every step taken; the loss term of a reset step uses the pre-reset state of that "
-            "step (captured by wrapping env.reset during the window), so no step's loss is lost. "
-            + (
-                "All envs are reset after every window, outside the timer."
-                if reset_between
-                else "No reset between windows (rolling on)."
-            )
-        ),
+        "reset_handling": reset_handling(reset_between),
         "gradient_check": {"all_windows_finite_and_nonzero": grads_ok, "warmup": warm_check, "timed": checks},
-        "packages": package_versions(),
-        "command": shlex.join([sys.executable, *sys.argv]),
-        "python": platform.python_version(),
-        "platform": platform.platform(),
-        "cpu_model": cpu_model(),
-        "cpu_count": os.cpu_count(),
-        "cpu_affinity": len(os.sched_getaffinity(0)),
-        "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),
-        "torch_num_threads": torch.get_num_threads(),
-        "warp_device": str(wp.get_device("cpu")),
-        "warp_kernel_cache": wp.config.kernel_cache_dir,
+        **machine(),
         "loadavg_start": loadavg_start,
         "loadavg_end": os.getloadavg(),
         "created_utc": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
     }
-    out_dir = os.path.dirname(os.path.abspath(args.out))
-    os.makedirs(out_dir, exist_ok=True)
+    os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
     with open(args.out, "w") as f:
         json.dump(result, f, indent=1, default=_jsonable)
         f.write("\n")
