@@ -936,6 +936,12 @@ def test_readmes_result_tables_are_the_ones_the_results_make(tmp_path):
     assert update_readme(copy / "README.md", copy) == ["protocol-ant"]
     assert "+12% [" in (copy / "README.md").read_text()
     assert update_readme(copy / "README.md", copy, check=True) == []
+    # the interval is the look's: a pair beyond it waits for the next look, and the label says so
+    for pairs, label in (("5", "(97.5%, the 5-pair look) |"), ("6", "(97.5%, the 5-pair look; 6 pairs so far) |")):
+        fields[9], fields[10], fields[13] = pairs, "5 pairs", "0.975"
+        claims.write_text(text.replace(first, ",".join(fields)))
+        update_readme(copy / "README.md", copy)
+        assert "+12% [" in (copy / "README.md").read_text() and label in (copy / "README.md").read_text()
     growth = copy / "results/bench/standard/grad_variance_vs_h_growth.csv"
     growth.write_text(growth.read_text().replace(",16.03353702926601,", ",17.0,", 1))  # SHAC's raw variance
     assert update_readme(copy / "README.md", copy) == ["grad-variance-growth"]

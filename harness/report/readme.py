@@ -57,6 +57,16 @@ def _design(row: dict) -> str:
     return row["design"]
 
 
+def _look_label(claim: dict) -> str:
+    """Which look the claim's interval is read at (``look`` holds e.g. "5 pairs"); pairs that arrived
+    after it wait for the next look and are named beside it."""
+    if not claim["look"]:
+        return f"{claim['pairs']} pairs, before the first look"
+    at = int(claim["look"].split()[0])
+    waiting = int(claim["pairs"]) - at
+    return f"the {at}-pair look" + (f"; {claim['pairs']} pairs so far" if waiting > 0 else "")
+
+
 def protocol_ant(root: Path) -> str:
     """The Ant protocol's final returns and each TD-lambda variant's claim against its base."""
     setting = {"task": "ant", "backend": "newton", "num_envs": "64", "horizon": "32", "epochs": "2000"}
@@ -74,9 +84,7 @@ def protocol_ant(root: Path) -> str:
         cells = [f"{ALGORITHM_NAMES[row['algo']]} ({row['seeds']})", f"{float(row['iqm_final']):.0f}", "", "", ""]
         if claim is not None:
             level = f"{100 * float(claim['confidence']):g}%"
-            look = (
-                f"the {claim['pairs']}-pair look" if claim["look"] else f"{claim['pairs']} pairs, before the first look"
-            )
+            look = _look_label(claim)
             cells[2] = f"{_pct(claim['measured_change'])} {_interval(claim)} ({level}, {look})"
             cells[3] = f"{_pct(claim['claimed_change'])}: {claim['verdict'].split(' (')[0]}"
             cells[4] = _design(claim)
