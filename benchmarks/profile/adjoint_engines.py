@@ -101,8 +101,9 @@ def _parts_in_isolation(sim, engine, control, repeats: int = 5) -> dict:
     rows_leaf = dataclasses.replace(rows, **{f.name: _leaf(getattr(rows, f.name)) for f in dataclasses.fields(rows)})
     smooth = _leaf(sim.applied_force(u, q, v) - tree.damping * v)
     with torch.no_grad():
-        mass, zones = mass.detach(), cons.zones(rows, a0)
-        hessian = _hessian(mass, rows, a0, zones)
+        limit_zone, contact_zone, blocks = cons.zones_and_hessian_blocks(rows, a0)
+        mass, zones = mass.detach(), (limit_zone, contact_zone)
+        hessian = _hessian(mass, rows, limit_zone, blocks)
 
     def solve():
         m = _leaf(mass)
@@ -122,7 +123,7 @@ def _parts_in_isolation(sim, engine, control, repeats: int = 5) -> dict:
         "bias forces": lambda: (dynamics.bias_force(tree, kin_leaf, _leaf(v)),),
         "constraint rows": lambda: tuple(vars(cons.constraint_rows(tree, kin_leaf, _leaf(q), _leaf(v))).values()),
         "zones and solver Hessian (no gradient)": lambda: (
-            _hessian(mass, rows, a0, cons.zones(rows, a0)).requires_grad_(True),
+            _hessian(mass, rows, *cons.zones_and_hessian_blocks(rows, a0)[::2]).requires_grad_(True),
         ),
         "constraint solve": solve,
         "integrator": integrate,
@@ -191,7 +192,7 @@ def main() -> None:
     print(report["adjoint_window_profile"])
     if args.out:
         command = "python benchmarks/profile/adjoint_engines.py " + " ".join(sys.argv[1:])
-        write_json(Path(args.out), {**report, "command": command, "provenance": provenance()})
+        write_json(Path(args.out), {**report, "command": command, "provenance": provenance(command)})
         print(f"wrote {args.out}")
 
 

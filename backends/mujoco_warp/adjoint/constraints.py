@@ -56,10 +56,8 @@ def _contact_points(tree: RigidTree, kin: Kinematics) -> tuple[torch.Tensor, tor
     (:func:`_cylinder_points`): points (N, C, 3), radii (C,), geom index into ``tree.geoms`` (C,)."""
     g = tree.geoms
     geom = g["candidate_geom"]
-    rot = kin.rot[:, g["body"][geom]]  # (N, C, 3, 3) body frames
-    centre = kin.origin[:, g["body"][geom]] + (rot @ g["pos"][geom][..., None]).squeeze(-1)
-    offset = (g["rot"][geom] @ g["candidate_offset"][..., None]).squeeze(-1)  # in the body frame
-    points, radii = centre + (rot @ offset[..., None]).squeeze(-1), g["candidate_radius"]
+    points = (kin.frame[:, g["candidate_body"]] @ g["candidate_point"][..., None]).squeeze(-1)  # (N, C, 3)
+    radii = g["candidate_radius"]
     if len(g["cylinder_geom"]):
         rims = _cylinder_points(tree, kin)
         points = torch.cat((points, rims), dim=1)
@@ -128,7 +126,7 @@ def constraint_rows(tree: RigidTree, kin: Kinematics, qpos: torch.Tensor, qvel: 
     vel = sign * qvel[:, lim["dof"]]
     imp = lim["imp"]
     limit_aref = (lim["solref"][:, 0] * pos + lim["solref"][:, 1] * vel) / imp
-    limit_d = (pos < 0).detach().to(qpos.dtype) * imp / ((1 - imp) * lim["invweight"])
+    limit_d = (pos < 0).detach().to(qpos.dtype) * lim["d"]
 
     centre, radius, geom = _contact_points(tree, kin)
     pick = _touching(centre[..., 2] - radius)  # (N, K)
@@ -146,7 +144,7 @@ def constraint_rows(tree: RigidTree, kin: Kinematics, qpos: torch.Tensor, qvel: 
     solref, imp = g["solref"][geom], g["imp"][geom]  # (N, K, 2), (N, K)
     aref = solref[..., 1:] * velocity / imp[..., None]
     aref = torch.cat((aref[..., :1] + (solref[..., 0] * dist / imp)[..., None], aref[..., 1:]), dim=-1)
-    d_normal = imp / ((1 - imp) * g["invweight"][geom])
+    d_normal = g["d"][geom]
     scale = torch.tensor([1.0] + [tree.impratio] * (len(axes) - 1), dtype=qpos.dtype)
     contact_d = (dist < 0).detach().to(qpos.dtype)[..., None] * d_normal[..., None] * scale
     friction = g["mu"][geom]
@@ -175,14 +173,18 @@ def _contact_jar(rows: Rows, qacc: torch.Tensor) -> torch.Tensor:
     return (rows.contact_jac @ qacc[:, None, :, None]).squeeze(-1) - rows.contact_aref
 
 
-def zones(rows: Rows, qacc: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Each limit's (N, L) and contact's (N, C) zone at the solver's acceleration ``qacc`` (N, nv)."""
+def zones_and_hessian_blocks(rows: Rows, qacc: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """At the solver's acceleration ``qacc`` (N, nv): each limit's (N, L) and contact's (N, C) zone, and
+    each contact's cost Hessian in ``jar`` (N, C, k, k), zero where satisfied (what MuJoCo's Newton
+    solver factors). Without gradient: the zones are frozen, the Hessian held constant (step.py)."""
     limit_jar = _limit_jar(rows, qacc)
     limit_zone = torch.where((limit_jar < 0) & (rows.limit_d > 0), QUADRATIC, SATISFIED)
     jar = _contact_jar(rows, qacc)
     if rows.contact_jac.shape[2] == 1:
-        return limit_zone, torch.where((jar[..., 0] < 0) & (rows.contact_d[..., 0] > 0), QUADRATIC, SATISFIED)
-    return limit_zone, _cone(rows, jar)[-1]
+        zone = torch.where((jar[..., 0] < 0) & (rows.contact_d[..., 0] > 0), QUADRATIC, SATISFIED)
+        return limit_zone, zone, torch.diag_embed(rows.contact_d) * (zone == QUADRATIC)[..., None, None]
+    normal, u, t, _, zone = _cone(rows, jar)
+    return limit_zone, zone, _cone_hessian(rows, normal, u, t, zone)
 
 
 def forces(rows: Rows, qacc: torch.Tensor, limit_zone: torch.Tensor, contact_zone: torch.Tensor):
@@ -201,24 +203,19 @@ def forces(rows: Rows, qacc: torch.Tensor, limit_zone: torch.Tensor, contact_zon
     return limit_f, quadratic + cone * (contact_zone == CONE)[..., None]
 
 
-def hessian_blocks(rows: Rows, qacc: torch.Tensor, contact_zone: torch.Tensor) -> torch.Tensor:
-    """(N, C, k, k) each contact's cost Hessian in ``jar`` at ``qacc`` (zero where satisfied)."""
-    k = rows.contact_jac.shape[2]
-    blocks = torch.diag_embed(rows.contact_d) * (contact_zone == QUADRATIC)[..., None, None]
-    if k == 1:
-        return blocks
-    jar = _contact_jar(rows, qacc)
+def _cone_hessian(rows: Rows, normal: torch.Tensor, u: torch.Tensor, t: torch.Tensor, zone: torch.Tensor):
+    """(N, C, 3, 3) each condim-3 contact's cost Hessian in ``jar`` given its cone terms (:func:`_cone`)."""
     mu = rows.mu
-    normal, u, t, _, _ = _cone(rows, jar)
+    blocks = torch.diag_embed(rows.contact_d) * (zone == QUADRATIC)[..., None, None]
     dm = rows.contact_d[..., 0] / (mu**2 * (1 + mu**2))
     direction = u / t[..., None]
     ratio = (mu * normal / t)[..., None, None]
     side = -mu[..., None] * direction  # (N, C, 2)
     corner = ratio * direction[..., :, None] * direction[..., None, :] + (mu[..., None, None] ** 2 - ratio) * torch.eye(
-        2, dtype=qacc.dtype
+        2, dtype=u.dtype
     )
     top = torch.cat((torch.ones_like(side[..., :1]), side), dim=-1)  # (N, C, 3)
     hu = torch.cat((top[..., None, :], torch.cat((side[..., :, None], corner), dim=-1)), dim=-2)
     p = torch.stack((rows.mu, rows.friction, rows.friction), dim=-1)  # jar -> (N, u)
     cone = dm[..., None, None] * p[..., :, None] * hu * p[..., None, :]
-    return blocks + cone * (contact_zone == CONE)[..., None, None]
+    return blocks + cone * (zone == CONE)[..., None, None]

@@ -28,93 +28,121 @@ import torch
 from backends.mujoco_warp.adjoint.tree import RigidTree
 
 
+def _quadratic_form() -> torch.Tensor:
+    """(16, 9) ``W`` with ``R = (q q^T) W`` the rotation matrix of a unit quaternion ``q`` (w, x, y, z):
+    every entry of ``R`` is a quadratic form in ``q`` (``1 - 2 (y^2 + z^2) = w^2 + x^2 - y^2 - z^2``)."""
+    w = torch.zeros(4, 4, 3, 3, dtype=torch.float64)
+    for i, signs in enumerate(((1, 1, -1, -1), (1, -1, 1, -1), (1, -1, -1, 1))):
+        for a, sign in enumerate(signs):
+            w[a, a, i, i] = sign
+    # off the diagonal: (i, j, a, b, sign) for R_ij += 2 sign q_a q_b, split evenly over q_a q_b and q_b q_a
+    for i, j, a, b, sign in (
+        (0, 1, 1, 2, 1), (0, 1, 0, 3, -1), (0, 2, 1, 3, 1), (0, 2, 0, 2, 1),
+        (1, 0, 1, 2, 1), (1, 0, 0, 3, 1), (1, 2, 2, 3, 1), (1, 2, 0, 1, -1),
+        (2, 0, 1, 3, 1), (2, 0, 0, 2, -1), (2, 1, 2, 3, 1), (2, 1, 0, 1, 1),
+    ):  # fmt: skip
+        w[a, b, i, j] += sign
+        w[b, a, i, j] += sign
+    return w.reshape(16, 9)
+
+
+_QUAT_FORM = _quadratic_form()
+
+
 def quat_to_matrix(q: torch.Tensor) -> torch.Tensor:
     """Rotation matrices (..., 3, 3) of quaternions (..., 4) in MuJoCo's w, x, y, z order, normalised first."""
     q = q / q.norm(dim=-1, keepdim=True)
-    w, x, y, z = q.unbind(-1)
-    rows = (
-        (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
-        (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
-        (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)),
-    )
-    return torch.stack([torch.stack(r, dim=-1) for r in rows], dim=-2)
+    outer = (q[..., :, None] * q[..., None, :]).flatten(-2)
+    return (outer @ _QUAT_FORM.to(q.dtype)).unflatten(-1, (3, 3))
 
 
-def axis_angle_matrix(skew: torch.Tensor, angle: torch.Tensor) -> torch.Tensor:
-    """Rotations (N, k, 3, 3) by ``angle`` (N, k) about unit axes whose cross-product matrices are
-    ``skew`` (k, 3, 3) (Rodrigues' formula)."""
-    s, c = torch.sin(angle)[..., None, None], torch.cos(angle)[..., None, None]
-    return torch.eye(3, dtype=skew.dtype) + s * skew + (1 - c) * (skew @ skew)
+def _spatial_map() -> torch.Tensor:
+    """(21, 36) ``W`` with a body's 6 x 6 inertia about the world origin (:func:`_spatial_inertia`) equal
+    to ``[I_c, m c c^T, m c] W`` (flattened) plus ``m`` on the lower-right diagonal: ``m C C^T = |c|^2 m 1
+    - m c c^T`` and ``m C`` with ``C_ij = -eps_ijk c_k``, all linear in those 21 numbers."""
+    w = torch.zeros(21, 6, 6, dtype=torch.float64)
+    for i in range(3):
+        for j in range(3):
+            w[3 * i + j, i, j] += 1.0  # I_c
+            w[9 + 3 * i + j, i, j] -= 1.0  # - m c c^T
+            w[9 + 4 * j, i, i] += 1.0  # + m c_j^2 on the diagonal
+            for k in range(3):
+                w[18 + k, i, 3 + j] -= _levi_civita(i, j, k)  # m C
+                w[18 + k, 3 + i, j] -= _levi_civita(j, i, k)  # m C^T
+    return w.reshape(21, 36)
 
 
-def _skew(v: torch.Tensor) -> torch.Tensor:
-    """Cross-product matrices (..., 3, 3) of vectors (..., 3): ``_skew(a) @ b = a x b``."""
-    x, y, z = v.unbind(-1)
-    zero = torch.zeros_like(x)
-    return torch.stack((zero, -z, y, z, zero, -x, -y, x, zero), dim=-1).reshape(*v.shape, 3)
+def _levi_civita(i: int, j: int, k: int) -> int:
+    return (i - j) * (j - k) * (k - i) // 2
+
+
+_SPATIAL_MAP = _spatial_map()
 
 
 @dataclass
 class Kinematics:
     """One configuration's kinematics (N worlds): body frames, spatial inertias, dof motion vectors."""
 
-    rot: torch.Tensor  # (N, nbody, 3, 3) body frames
-    origin: torch.Tensor  # (N, nbody, 3) body origins
+    frame: torch.Tensor  # (N, nbody, 3, 4) each body's rotation and origin, [R | x]
     spatial_inertia: torch.Tensor  # (N, nbody, 6, 6) about the world origin (zero for the world body)
     motion: torch.Tensor  # (N, nv, 6) each dof's motion vector S (module docstring)
 
+    @property
+    def rot(self) -> torch.Tensor:
+        """(N, nbody, 3, 3) body rotations."""
+        return self.frame[..., :3]
+
+    @property
+    def origin(self) -> torch.Tensor:
+        """(N, nbody, 3) body origins."""
+        return self.frame[..., 3]
+
 
 def _free_root(tree: RigidTree, qpos: torch.Tensor, b: int):
-    """A free root's frame, origin and its 6 dofs' motion vectors (N, 6, 6)."""
+    """A free root's frame ``[R | x]`` (N, 3, 4) and its 6 dofs' motion vectors (N, 6, 6)."""
     n, qa = qpos.shape[0], tree.qposadr[b]
     x, r = qpos[:, qa : qa + 3], quat_to_matrix(qpos[:, qa + 3 : qa + 7])
     translations = torch.cat((qpos.new_zeros(3, 3), torch.eye(3, dtype=qpos.dtype)), dim=1).expand(n, 3, 6)
     axes = r.transpose(1, 2)  # rows: the body's axes in world coordinates
     rotations = torch.cat((axes, torch.linalg.cross(x[:, None].expand(n, 3, 3), axes, dim=-1)), dim=-1)
-    return r, x, torch.cat((translations, rotations), dim=1)
+    return torch.cat((r, x[..., None]), dim=-1), torch.cat((translations, rotations), dim=1)
 
 
 def kinematics(tree: RigidTree, qpos: torch.Tensor) -> Kinematics:
     """MuJoCo's forward kinematics (``mj_kinematics``, ``mj_comPos``) of ``qpos`` (N, nq), one depth
-    level of the tree at a time (every body of a level has a hinge; a free joint is the root's)."""
+    level of the tree at a time (every body of a level has a hinge; a free joint is the root's). A
+    body's frame is ``[R | x]`` (3 x 4); a hinge level's frames, anchors and axes are its parents'
+    frames times one matrix per body (:func:`~backends.mujoco_warp.adjoint.tree._hinge_local_frames`)."""
     n, dtype = qpos.shape[0], qpos.dtype
-    rot = {0: torch.eye(3, dtype=dtype).expand(n, 1, 3, 3)}  # per level: (N, k, 3, 3)
-    origin = {0: qpos.new_zeros(n, 1, 3)}
+    frames = [torch.eye(3, 4, dtype=dtype).expand(n, 1, 3, 4)]  # per level: (N, k, 3, 4)
     motion = []
-    for depth, level in enumerate(tree.levels, start=1):
-        parents = level["parent_slot"]
+    for level in tree.levels:
         if level["free"]:
-            r, x, s = _free_root(tree, qpos, level["first"])
-            rot[depth], origin[depth] = r[:, None], x[:, None]
+            frame, s = _free_root(tree, qpos, level["first"])
+            frames.append(frame[:, None])
             motion.append(s)
             continue
-        r_parent, x_parent = rot[depth - 1][:, parents], origin[depth - 1][:, parents]
-        r = r_parent @ level["body_rot"]
-        x = x_parent + (r_parent @ level["body_pos"]).squeeze(-1)
-        jnt_pos = level["jnt_pos"]
-        anchor = x + (r @ jnt_pos).squeeze(-1)
-        axis = (r @ level["jnt_axis"]).squeeze(-1)
         angle = qpos[:, level["qpos"]] - level["qpos0"]
-        r = r @ axis_angle_matrix(level["skew"], angle)
-        rot[depth], origin[depth] = r, anchor - (r @ jnt_pos).squeeze(-1)
+        weights = torch.stack((torch.ones_like(angle), torch.sin(angle), 1 - torch.cos(angle)), dim=-1)
+        local = torch.einsum("nkt,ktij->nkij", weights, level["local"])  # (N, k, 4, 6)
+        world = frames[-1][:, level["parent_slot"]] @ local  # (N, k, 3, 6): [R | x | anchor | axis]
+        anchor, axis = world[..., 4], world[..., 5]
+        frames.append(world[..., :4])
         motion.append(torch.cat((axis, torch.linalg.cross(anchor, axis, dim=-1)), dim=-1))
-    rot_t = torch.cat([rot[d] for d in range(len(tree.levels) + 1)], dim=1)[:, tree.level_order]
-    origin_t = torch.cat([origin[d] for d in range(len(tree.levels) + 1)], dim=1)[:, tree.level_order]
-    motion_t = torch.cat(motion, dim=1)[:, tree.dof_order]
-    return Kinematics(rot_t, origin_t, _spatial_inertia(tree, rot_t, origin_t), motion_t)
+    frame = torch.cat(frames, dim=1)[:, tree.level_order]
+    return Kinematics(frame, _spatial_inertia(tree, frame), torch.cat(motion, dim=1)[:, tree.dof_order])
 
 
-def _spatial_inertia(tree: RigidTree, rot: torch.Tensor, origin: torch.Tensor) -> torch.Tensor:
+def _spatial_inertia(tree: RigidTree, frame: torch.Tensor) -> torch.Tensor:
     """Each body's 6 x 6 inertia about the world origin: ``[[I_c + m C C^T, m C], [m C^T, m 1]]``, ``C``
     the cross-product matrix of its centre of mass ``c`` (momentum ``(I_c w + c x p, p)``, ``p = m (v + w x c)``)."""
-    com = origin + (rot @ tree.ipos[..., None]).squeeze(-1)
-    principal = rot @ tree.irot
-    inertia = principal @ (tree.inertia[..., None] * principal.transpose(-1, -2))
-    mass = tree.mass[:, None, None]
-    c = _skew(com)
-    top = torch.cat((inertia + mass * (c @ c.transpose(-1, -2)), mass * c), dim=-1)
-    bottom = torch.cat((mass * c.transpose(-1, -2), mass * torch.eye(3, dtype=rot.dtype).expand_as(c)), dim=-1)
-    return torch.cat((top, bottom), dim=-2)
+    rot = frame[..., :3]
+    local = rot @ tree.local_inertia  # (N, nbody, 3, 4): R I_body and R ipos
+    inertia = local[..., :3] @ rot.transpose(-1, -2)
+    com = frame[..., 3] + local[..., 3]
+    moment = tree.mass[:, None] * com
+    features = torch.cat((inertia.flatten(-2), (moment[..., :, None] * com[..., None, :]).flatten(-2), moment), -1)
+    return (features @ _SPATIAL_MAP.to(rot.dtype)).unflatten(-1, (6, 6)) + tree.mass_block
 
 
 def cross_motion(v: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
@@ -156,8 +184,7 @@ def bias_force(tree: RigidTree, kin: Kinematics, qvel: torch.Tensor) -> torch.Te
     turning = cross_motion(velocity[:, tree.dof_body], kin.motion) * (qvel * tree.moving_axis)[..., None]
     base = torch.cat((qvel.new_zeros(3), -tree.gravity))
     accel = base + torch.einsum("bj,njk->nbk", tree.ancestor, turning)
-    inertia = kin.spatial_inertia
-    momentum = (inertia @ velocity[..., None]).squeeze(-1)
-    force = (inertia @ accel[..., None]).squeeze(-1) + cross_force(velocity, momentum)
+    momentum, inertial = (kin.spatial_inertia @ torch.stack((velocity, accel), dim=-1)).unbind(-1)
+    force = inertial + cross_force(velocity, momentum)
     per_dof = torch.einsum("bj,nbk->njk", tree.ancestor, force)
     return (kin.motion * per_dof).sum(-1)

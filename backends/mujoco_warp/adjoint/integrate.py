@@ -4,42 +4,51 @@ position adds ``h v`` (world frame) and its quaternion turns by the body-frame a
 
 from __future__ import annotations
 
-import mujoco
+import math
+
 import torch
 
 from backends.mujoco_warp.adjoint.tree import RigidTree
-from simcore import quat_mul, wxyz_to_xyzw, xyzw_to_wxyz
+
+
+def _hamilton_form() -> torch.Tensor:
+    """(16, 4) ``W`` with ``a * b = (a b^T) W`` (flattened), the Hamilton product of w, x, y, z quaternions:
+    each component of the product is a bilinear form in the two factors."""
+    w = torch.zeros(4, 4, 4, dtype=torch.float64)
+    # (component, a index, b index, sign): w = aw bw - ax bx - ay by - az bz; x = aw bx + ax bw + ay bz - az by; ...
+    for out, a, b, sign in (
+        (0, 0, 0, 1), (0, 1, 1, -1), (0, 2, 2, -1), (0, 3, 3, -1),
+        (1, 0, 1, 1), (1, 1, 0, 1), (1, 2, 3, 1), (1, 3, 2, -1),
+        (2, 0, 2, 1), (2, 1, 3, -1), (2, 2, 0, 1), (2, 3, 1, 1),
+        (3, 0, 3, 1), (3, 1, 2, 1), (3, 2, 1, -1), (3, 3, 0, 1),
+    ):  # fmt: skip
+        w[a, b, out] = sign
+    return w.reshape(16, 4)
+
+
+_HAMILTON = _hamilton_form()
 
 
 def quat_mul_wxyz(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """Hamilton product of (..., 4) quaternions in MuJoCo's w, x, y, z order (:func:`simcore.quat_mul`'s)."""
-    return xyzw_to_wxyz(quat_mul(wxyz_to_xyzw(a), wxyz_to_xyzw(b)))
+    return (a[..., :, None] * b[..., None, :]).flatten(-2) @ _HAMILTON.to(a.dtype)
 
 
 def rotation_quat(rotvec: torch.Tensor) -> torch.Tensor:
-    """w, x, y, z quaternions of rotation vectors (..., 3); smooth through zero (sin(t/2)/t by its series),
-    where :func:`simcore.quat_from_rotation_vector`'s gradient is not: the adjoint differentiates at zero."""
-    angle_sq = (rotvec * rotvec).sum(-1, keepdim=True)
-    angle = torch.sqrt(angle_sq.clamp_min(1e-30))
-    small = angle_sq < 1e-8
-    half_sinc = torch.where(small, 0.5 - angle_sq / 48.0, torch.sin(0.5 * angle) / angle)
-    cos = torch.where(small, 1.0 - angle_sq / 8.0, torch.cos(0.5 * angle))
-    return torch.cat((cos, half_sinc * rotvec), dim=-1)
+    """w, x, y, z quaternions of rotation vectors (..., 3), ``(cos(t / 2), sin(t / 2) / t v)`` with ``t = |v|``;
+    smooth through zero (``sin(t / 2) / t`` as torch's ``sinc``, whose derivative is defined there), where
+    :func:`simcore.quat_from_rotation_vector`'s gradient is not: the adjoint differentiates at zero."""
+    angle = torch.sqrt((rotvec * rotvec).sum(-1, keepdim=True).clamp_min(1e-30))
+    return torch.cat((torch.cos(0.5 * angle), 0.5 * torch.sinc(angle / (2 * math.pi)) * rotvec), dim=-1)
 
 
 def integrate_positions(tree: RigidTree, qpos: torch.Tensor, qvel: torch.Tensor, h: float) -> torch.Tensor:
-    """``qpos`` (N, nq) advanced by ``h`` at velocity ``qvel`` (N, nv), MuJoCo's convention."""
-    parts, cursor = [], 0
-    for b in sorted(range(1, tree.nbody), key=lambda body: tree.qposadr[body]):
-        qa, da = tree.qposadr[b], tree.dofadr[b]
-        if tree.joint_type[b] == mujoco.mjtJoint.mjJNT_FREE:
-            position = qpos[:, qa : qa + 3] + h * qvel[:, da : da + 3]
-            turned = quat_mul_wxyz(qpos[:, qa + 3 : qa + 7], rotation_quat(h * qvel[:, da + 3 : da + 6]))
-            parts += [position, turned / turned.norm(dim=-1, keepdim=True)]
-            cursor = qa + 7
-        else:
-            parts.append(qpos[:, qa : qa + 1] + h * qvel[:, da : da + 1])
-            cursor = qa + 1
-    if cursor != tree.nq:
-        raise AssertionError("qpos layout not covered by the tree's joints")
-    return torch.cat(parts, dim=1)
+    """``qpos`` (N, nq) advanced by ``h`` at velocity ``qvel`` (N, nv), MuJoCo's convention: every
+    coordinate but the free root's quaternion moves linearly (``tree.velocity_map``), the quaternion turns."""
+    moved = qpos + h * (qvel @ tree.velocity_map)
+    root = tree.levels[0] if tree.levels else None
+    if root is None or not root["free"]:
+        return moved
+    qa, da = tree.qposadr[root["first"]], tree.dofadr[root["first"]]
+    turned = quat_mul_wxyz(qpos[:, qa + 3 : qa + 7], rotation_quat(h * qvel[:, da + 3 : da + 6]))
+    return torch.cat((moved[:, : qa + 3], turned / turned.norm(dim=-1, keepdim=True), moved[:, qa + 7 :]), dim=1)

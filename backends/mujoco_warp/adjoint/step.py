@@ -18,8 +18,8 @@ first (:func:`control_step_vjp`). The replay (:func:`substep`) is MuJoCo's step 
    matrix MuJoCo's Newton solver factors. ``a = a0 - H^-1 g(a0; x)`` with ``a0`` and ``H`` held constant
    has exactly that derivative, and equals ``a0`` to the solver's tolerance: one linear solve per
    substep in the backward pass, never a pass through the solver's iterations;
-5. Euler with implicit damping: ``(M + h B) a_int = M a``, ``qvel' = qvel + h a_int``, then
-   ``qpos' = integrate(qpos, qvel', h)`` (:mod:`.integrate`).
+5. Euler with implicit damping: ``(M + h B) a_int = M a`` (``a_int = a`` without damping),
+   ``qvel' = qvel + h a_int``, then ``qpos' = integrate(qpos, qvel', h)`` (:mod:`.integrate`).
 """
 
 from __future__ import annotations
@@ -42,13 +42,13 @@ def _constraint_force(rows: cons.Rows, qacc: torch.Tensor, zones) -> torch.Tenso
     return joint + (rows.contact_jac * contact_f[..., None]).sum((1, 2))
 
 
-def _hessian(mass: torch.Tensor, rows: cons.Rows, qacc: torch.Tensor, zones) -> torch.Tensor:
-    """The solver cost's Hessian ``M + J^T C J`` (N, nv, nv) at ``qacc``."""
-    limit_zone, contact_zone = zones
+def _hessian(mass: torch.Tensor, rows: cons.Rows, limit_zone: torch.Tensor, blocks: torch.Tensor) -> torch.Tensor:
+    """The solver cost's Hessian ``M + J^T C J`` (N, nv, nv), ``C`` the limits' ``D`` where quadratic and
+    the contacts' ``blocks`` (:func:`~backends.mujoco_warp.adjoint.constraints.zones_and_hessian_blocks`)."""
     d = rows.limit_d * (limit_zone == cons.QUADRATIC)
-    h = mass + torch.einsum("nli,nl,nlj->nij", rows.limit_jac, d, rows.limit_jac)
-    blocks = cons.hessian_blocks(rows, qacc, contact_zone)
-    return h + torch.einsum("ncai,ncab,ncbj->nij", rows.contact_jac, blocks, rows.contact_jac)
+    h = mass + (rows.limit_jac.transpose(1, 2) * d[:, None]) @ rows.limit_jac
+    jac = rows.contact_jac.flatten(1, 2)  # (N, C k, nv)
+    return h + jac.transpose(1, 2) @ (blocks @ rows.contact_jac).flatten(1, 2)
 
 
 def substep(
@@ -61,21 +61,24 @@ def substep(
     with record_function("adjoint: mass matrix"):
         mass = dynamics.mass_matrix(tree, kin)
     with record_function("adjoint: bias forces"):
-        smooth = applied - tree.damping * qvel - dynamics.bias_force(tree, kin, qvel)
+        smooth = applied - dynamics.bias_force(tree, kin, qvel)
+        if tree.damped:
+            smooth = smooth - tree.damping * qvel
     with record_function("adjoint: constraint rows"):
         rows = cons.constraint_rows(tree, kin, qpos, qvel)
     with record_function("adjoint: constraint solve"):
         qacc0 = qacc0.detach()
         with torch.no_grad():
-            zones = cons.zones(rows, qacc0)
-            hessian = _hessian(mass, rows, qacc0, zones)
+            limit_zone, contact_zone, blocks = cons.zones_and_hessian_blocks(rows, qacc0)
+            hessian = _hessian(mass, rows, limit_zone, blocks)
+        zones = (limit_zone, contact_zone)
         residual = (mass @ qacc0[..., None]).squeeze(-1) - smooth - _constraint_force(rows, qacc0, zones)
         qacc = qacc0 - torch.linalg.solve(hessian, residual)
     with record_function("adjoint: integrator"):
         h = tree.timestep
-        damped = mass + h * torch.diag(tree.damping)
-        qacc_int = torch.linalg.solve(damped, (mass @ qacc[..., None]).squeeze(-1))
-        qvel_next = qvel + h * qacc_int
+        if tree.damped:
+            qacc = torch.linalg.solve(mass + h * torch.diag(tree.damping), (mass @ qacc[..., None]).squeeze(-1))
+        qvel_next = qvel + h * qacc
         return integrate_positions(tree, qpos, qvel_next, h), qvel_next
 
 

@@ -39,6 +39,8 @@ class RigidTree:
     irot: torch.Tensor  # (nbody, 3, 3) principal inertia frame in the body frame
     mass: torch.Tensor  # (nbody,)
     inertia: torch.Tensor  # (nbody, 3) principal moments
+    local_inertia: torch.Tensor  # (nbody, 3, 4) rotational inertia about the centre of mass, the centre; body frame
+    mass_block: torch.Tensor  # (nbody, 6, 6) the mass on the lower-right diagonal of each spatial inertia
     joint_type: list[int]  # (nbody,) -1 for none (the world), else mjtJoint
     qposadr: list[int]
     dofadr: list[int]
@@ -49,9 +51,11 @@ class RigidTree:
     level_order: torch.Tensor  # (nbody,) each body's place in [world] + levels, concatenated
     dof_order: torch.Tensor  # (nv,) each dof's place in the levels' dofs, concatenated
     dof_body: torch.Tensor  # (nv,) long, the body each dof belongs to
+    velocity_map: torch.Tensor  # (nv, nq) 1 from each hinge or free translation dof to its qpos (quaternions: 0)
     moving_axis: torch.Tensor  # (nv,) 1 where the dof's motion axis turns with the body (not a free translation)
     armature: torch.Tensor  # (nv,)
     damping: torch.Tensor  # (nv,)
+    damped: bool  # any dof damped: else the step skips the damping terms and the integrator's implicit solve
     gravity: torch.Tensor  # (3,)
     timestep: float
     limits: (
@@ -127,7 +131,7 @@ def _limits(m: mujoco.MjModel) -> dict:
     dofs = [int(m.jnt_dofadr[j]) for j in rows]
     selector = torch.zeros(len(dofs), m.nv, dtype=torch.float64)
     selector[torch.arange(len(dofs)), dofs] = 1.0
-    return {
+    out = {
         "dof": torch.tensor(dofs, dtype=torch.long),
         "selector": selector,  # (L, nv) one at each limit's dof
         "qpos": torch.tensor([int(m.jnt_qposadr[j]) for j in rows], dtype=torch.long),
@@ -137,6 +141,8 @@ def _limits(m: mujoco.MjModel) -> dict:
         "imp": _as([m.jnt_solimp[j][0] for j in rows]),
         "invweight": _as([m.dof_invweight0[d] for d in dofs]),
     }
+    out["d"] = out["imp"] / ((1 - out["imp"]) * out["invweight"])  # D = 1 / R of an active limit
+    return out
 
 
 def _contact_geoms(m: mujoco.MjModel) -> dict:
@@ -171,6 +177,11 @@ def _contact_geoms(m: mujoco.MjModel) -> dict:
         raise _refuse("a direct-form solref on the plane (MuJoCo would mix it with the robot geom's)")
     bodies = [int(m.geom_bodyid[g]) for g in touching]
     geom_of, offsets, radii = _candidates(m, touching)
+    geom_pos = _as([m.geom_pos[g] for g in touching]).reshape(-1, 3)
+    geom_rot = _as(_mat([m.geom_quat[g] for g in touching])).reshape(-1, 3, 3)
+    in_body = geom_pos[geom_of] + (geom_rot[geom_of] @ _as(offsets).reshape(-1, 3, 1)).squeeze(-1)
+    imp = _as([m.geom_solimp[g][0] for g in touching])
+    invweight = _as([m.body_invweight0[b][0] for b in bodies])
     return {
         "index": torch.tensor(touching, dtype=torch.long),
         "body": torch.tensor(bodies, dtype=torch.long),
@@ -178,12 +189,15 @@ def _contact_geoms(m: mujoco.MjModel) -> dict:
         "rot": _as(_mat([m.geom_quat[g] for g in touching])).reshape(-1, 3, 3),
         "mu": _as([m.geom_friction[g][0] for g in touching]),  # the priority geom's (the robot's)
         "solref": _as([m.geom_solref[g] for g in touching]).reshape(-1, 2),
-        "imp": _as([m.geom_solimp[g][0] for g in touching]),
-        "invweight": _as([m.body_invweight0[b][0] for b in bodies]),
+        "imp": imp,
+        "invweight": invweight,
+        "d": imp / ((1 - imp) * invweight),  # D = 1 / R of a contact's normal row
         "condim": condims.pop() if condims else 1,
         "candidate_geom": torch.tensor(geom_of, dtype=torch.long),  # (C,) into the lists above
-        "candidate_offset": _as(offsets).reshape(-1, 3),  # (C, 3) in the geom's frame
         "candidate_radius": _as(radii),  # (C,) dist = height of the point above the plane - radius
+        "candidate_body": torch.tensor([bodies[i] for i in geom_of], dtype=torch.long),  # (C,)
+        # (C, 4) each point in its body's frame, and a 1: the body's frame [R | x] times it is the point in the world
+        "candidate_point": torch.cat((in_body, torch.ones(len(geom_of), 1, dtype=torch.float64)), dim=1),
         # cylinders: their four points move over the rim with the configuration (constraints._cylinder_points)
         "cylinder_geom": torch.tensor([i for i, g in enumerate(touching) if _is_cylinder(m, g)], dtype=torch.long),
         "cylinder_size": _as([m.geom_size[g][:2] for g in touching if _is_cylinder(m, g)]).reshape(-1, 2),
@@ -241,21 +255,18 @@ def rigid_tree(m: mujoco.MjModel) -> RigidTree:
             a = parent[a]
     levels, level_order, dof_order = _levels(parent, joint_type, qposadr, dofadr, m.nv)
     for level in levels:  # each level's constants, gathered once
-        b = level["bodies"]
-        level["body_rot"] = _as(_mat(m.body_quat))[b]
-        level["body_pos"] = _as(m.body_pos)[b][..., None]
-        level["jnt_pos"] = _as(m.jnt_pos)[m.body_jntadr[b.numpy()]][..., None]
-        axis = _as(m.jnt_axis)[m.body_jntadr[b.numpy()]]
-        level["jnt_axis"] = axis[..., None]
-        level["skew"] = torch.stack(
-            [torch.tensor([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]], dtype=torch.float64) for x, y, z in axis.tolist()]
-        )
+        level["local"] = _hinge_local_frames(m, level["bodies"])
         level["qpos0"] = _as(m.qpos0)[level["qpos"]]
     moving = torch.ones(m.nv, dtype=torch.float64)
     for b in range(1, m.nbody):
         if joint_type[b] == mujoco.mjtJoint.mjJNT_FREE:
             moving[dofadr[b] : dofadr[b] + 3] = 0.0  # world-frame translations: their axes never turn
     geoms = _contact_geoms(m)
+    velocity_map = torch.zeros(m.nv, m.nq, dtype=torch.float64)
+    for b in range(1, m.nbody):
+        width = 3 if joint_type[b] == mujoco.mjtJoint.mjJNT_FREE else 1
+        for k in range(width):
+            velocity_map[dofadr[b] + k, qposadr[b] + k] = 1.0
     return RigidTree(
         nq=m.nq,
         nv=m.nv,
@@ -265,6 +276,8 @@ def rigid_tree(m: mujoco.MjModel) -> RigidTree:
         irot=_as(_mat(m.body_iquat)),
         mass=_as(m.body_mass),
         inertia=_as(m.body_inertia),
+        local_inertia=_local_inertia(m),
+        mass_block=torch.diag_embed(torch.cat((torch.zeros(m.nbody, 3), _as(m.body_mass)[:, None].expand(-1, 3)), 1)),
         joint_type=joint_type,
         qposadr=qposadr,
         dofadr=dofadr,
@@ -275,9 +288,11 @@ def rigid_tree(m: mujoco.MjModel) -> RigidTree:
         level_order=level_order,
         dof_order=dof_order,
         dof_body=dof_body,
+        velocity_map=velocity_map,
         moving_axis=moving,
         armature=_as(m.dof_armature),
         damping=_as(m.dof_damping),
+        damped=bool(np.any(m.dof_damping)),
         gravity=_as(m.opt.gravity),
         timestep=float(m.opt.timestep),
         limits=_limits(m),
@@ -285,6 +300,41 @@ def rigid_tree(m: mujoco.MjModel) -> RigidTree:
         impratio=float(m.opt.impratio),
         condim=int(geoms["condim"]),
     )
+
+
+def _local_inertia(m: mujoco.MjModel) -> torch.Tensor:
+    """(nbody, 3, 4) each body's rotational inertia about its centre of mass, ``Q diag(I) Q^T`` with
+    ``Q`` its principal frame, and beside it the centre of mass, both in the body's frame."""
+    principal = _as(_mat(m.body_iquat))
+    rotational = principal @ (_as(m.body_inertia)[..., None] * principal.transpose(-1, -2))
+    return torch.cat((rotational, _as(m.body_ipos)[..., None]), dim=-1)
+
+
+def _hinge_local_frames(m: mujoco.MjModel, bodies: torch.Tensor) -> torch.Tensor:
+    """(k, 3, 4, 6) what a hinge level's kinematics multiply into the parent's frame ``[R | x]``, as three constant
+    parts weighted by ``(1, sin t, 1 - cos t)`` of each hinge's angle ``t``. With the body's rest frame
+    ``B``, offset ``b``, joint anchor ``p`` and unit axis with cross-product matrix ``K`` (all in the
+    parent's frame but ``p`` and the axis, in the body's), the hinge turns the body by
+    ``R = 1 + sin t K + (1 - cos t) K^2`` (Rodrigues) about ``p``, so in the parent's frame the body's
+    rotation is ``B R``, its origin ``b + B (1 - R) p``, the anchor ``b + B p`` and the axis ``B a``: the
+    six columns ``[B R | b + B (1 - R) p | b + B p | B a]``, each linear in ``(1, sin t, 1 - cos t)``,
+    with a fourth row ``(0, 0, 0, 1, 1, 0)`` so that the parent's ``x`` moves the two points only."""
+    index = bodies.numpy()
+    rest = _as(_mat(m.body_quat))[bodies]
+    offset = _as(m.body_pos)[bodies][..., None]
+    anchor = _as(m.jnt_pos)[m.body_jntadr[index]][..., None]
+    axis = _as(m.jnt_axis)[m.body_jntadr[index]]
+    x, y, z = axis.unbind(-1)
+    zero = torch.zeros_like(x)
+    skew = torch.stack((zero, -z, y, z, zero, -x, -y, x, zero), dim=-1).reshape(-1, 3, 3)
+    none = torch.zeros_like(offset)
+    constant = torch.cat((rest, offset, offset + rest @ anchor, rest @ axis[..., None]), dim=-1)
+    turning = [torch.cat((rest @ k, -(rest @ k @ anchor), none, none), dim=-1) for k in (skew, skew @ skew)]
+    # a fourth row, so that the parent's frame [R | x] adds its origin x to the two points, not to directions
+    points = torch.tensor([0.0, 0.0, 0.0, 1.0, 1.0, 0.0], dtype=torch.float64).expand(len(bodies), 1, 6)
+    constant = torch.cat((constant, points), dim=1)
+    turning = [torch.cat((t, torch.zeros_like(points)), dim=1) for t in turning]
+    return torch.stack([constant, *turning], dim=1)
 
 
 def _depth(parent: list[int], b: int) -> int:
