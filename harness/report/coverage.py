@@ -26,6 +26,7 @@ check fails the percentile PoI interval at 5 seeds.
 
 from __future__ import annotations
 
+import functools
 import math
 import sys
 from collections.abc import Callable
@@ -164,10 +165,14 @@ def log_scenarios() -> list[Scenario]:
     return [make(effect) for effect in (0.0, 0.5) for make in (lognormal, rough_outliers)]
 
 
+@functools.lru_cache(maxsize=32)
 def _large_base_draw(scenario: Scenario) -> np.ndarray:
-    """400,000 draws of the base side (a fixed generator), from which its true statistics are read."""
+    """400,000 draws of the base side (a fixed generator), from which its true statistics are read; made
+    once per scenario (a frozen, hashable value) however many statistics and seed counts read it."""
     _, base = scenario.draw(np.random.default_rng(54321), 1, 400_000)
-    return base[0]
+    draw = base[0].copy()
+    draw.flags.writeable = False
+    return draw
 
 
 def true_iqm(scenario: Scenario) -> float:
