@@ -35,10 +35,7 @@ class RigidTree:
     nv: int
     nbody: int  # bodies including the world (index 0)
     parent: list[int]  # (nbody,) parent body of each body
-    ipos: torch.Tensor  # (nbody, 3) centre of mass in the body frame
-    irot: torch.Tensor  # (nbody, 3, 3) principal inertia frame in the body frame
     mass: torch.Tensor  # (nbody,)
-    inertia: torch.Tensor  # (nbody, 3) principal moments
     local_inertia: torch.Tensor  # (nbody, 3, 4) rotational inertia about the centre of mass, the centre; body frame
     mass_block: torch.Tensor  # (nbody, 6, 6) the mass on the lower-right diagonal of each spatial inertia
     joint_type: list[int]  # (nbody,) -1 for none (the world), else mjtJoint
@@ -185,8 +182,8 @@ def _contact_geoms(m: mujoco.MjModel) -> dict:
     return {
         "index": torch.tensor(touching, dtype=torch.long),
         "body": torch.tensor(bodies, dtype=torch.long),
-        "pos": _as([m.geom_pos[g] for g in touching]).reshape(-1, 3),
-        "rot": _as(_mat([m.geom_quat[g] for g in touching])).reshape(-1, 3, 3),
+        "pos": geom_pos,
+        "rot": geom_rot,
         "mu": _as([m.geom_friction[g][0] for g in touching]),  # the priority geom's (the robot's)
         "solref": _as([m.geom_solref[g] for g in touching]).reshape(-1, 2),
         "imp": imp,
@@ -272,10 +269,7 @@ def rigid_tree(m: mujoco.MjModel) -> RigidTree:
         nv=m.nv,
         nbody=m.nbody,
         parent=parent,
-        ipos=_as(m.body_ipos),
-        irot=_as(_mat(m.body_iquat)),
         mass=_as(m.body_mass),
-        inertia=_as(m.body_inertia),
         local_inertia=_local_inertia(m),
         mass_block=torch.diag_embed(torch.cat((torch.zeros(m.nbody, 3), _as(m.body_mass)[:, None].expand(-1, 3)), 1)),
         joint_type=joint_type,
