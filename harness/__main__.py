@@ -5,11 +5,16 @@ to release its run's claim), a signal stops the process with one line and exit c
 stops by an exception raised where the program is, so every writer's cleanup runs on the way out: a
 temporary file is removed and a report's staged set discarded, while every file already in place was
 replaced whole.
+
+A job of a local suite also watches the suite (``harness/suite/launchers.py``): when the suite's end of
+the pipe it was given closes, the suite has died without passing anything on, and the job sends itself
+one SIGINT, as the suite's Ctrl-C would have.
 """
 
 import os
 import signal
 import sys
+import threading
 
 
 class _Stopped(BaseException):
@@ -21,8 +26,21 @@ def _stop_now(signum, frame):
     raise _Stopped(signum)
 
 
+def _stop_when_the_suite_dies(lifeline: int) -> None:
+    """Block until the suite's end of ``lifeline`` closes (it writes nothing), then ask this process to stop."""
+    try:
+        while os.read(lifeline, 1):
+            pass
+    except OSError:  # not a pipe this process can read: no lifeline to watch
+        return
+    os.kill(os.getpid(), signal.SIGINT)
+
+
 for _signum in (signal.SIGINT, signal.SIGTERM):
     signal.signal(_signum, _stop_now)
+_lifeline = os.environ.pop("DIFFSIM_SUITE_LIFELINE", "")  # popped: nothing this job starts inherits it
+if _lifeline.isdigit():
+    threading.Thread(target=_stop_when_the_suite_dies, args=(int(_lifeline),), daemon=True).start()
 
 try:
     from harness.cli import main  # after the handlers: imports take seconds

@@ -512,6 +512,10 @@ def test_a_killed_suite_takes_its_jobs_down_resumably(tmp_path):
     stopped = [d for d in runs.iterdir() if not (d / "eval.json").exists()]
     assert stopped, "no job stopped with the suite: it trained on as an orphan or finished before the kill"
     assert all((d / "checkpoint.pt").is_file() for d in stopped)
+    # one stop request, answered at the epoch boundary: never escalated to "stop now" by a repeat
+    for log in (store / "pm" / "logs").glob("*.log"):
+        text = log.read_text()
+        assert text.count("finishing this epoch") == 1 and "stopped now" not in text, text[-2000:]
     again = subprocess.run(command, capture_output=True, text=True, env=_env(), timeout=600)
     assert again.returncode == 0, again.stdout[-2000:] + again.stderr[-2000:]
     for run in runs.iterdir():

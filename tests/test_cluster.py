@@ -62,6 +62,25 @@ def test_claim_is_exclusive_and_released(tmp_path):
         assert generations(run) == [1]
 
 
+def test_a_signal_while_the_claim_is_released_still_removes_it(tmp_path, monkeypatch):
+    """A second Ctrl-C that lands while the heartbeat winds down raises out of the release: the claim
+    file must go all the same, or the run stays held until another worker judges it stale."""
+    run = tmp_path / "run"
+    claim = Claim(run).acquire()
+    heartbeat = claim._thread
+
+    def interrupted_join(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(heartbeat, "join", interrupted_join)
+    with pytest.raises(KeyboardInterrupt):
+        claim.release()
+    assert generations(run) == []
+    monkeypatch.undo()
+    heartbeat.join(timeout=30)
+    assert not heartbeat.is_alive()
+
+
 def test_a_live_holder_makes_the_next_worker_wait(tmp_path):
     run = tmp_path / "run"
     proc = _hold(run, seconds=2.0)

@@ -185,6 +185,8 @@ class Claim:
         path = self.run_dir / f"{PREFIX}{self.generation}"
         while not self._stop.wait(self.heartbeat_s):
             gens = generations(self.run_dir)
+            if self._stop.is_set():  # released meanwhile: a removed claim is this worker's own doing
+                return
             if not path.exists() or (gens and gens[-1] > self.generation):
                 print(
                     f"{self.run_dir.name}: another worker took this run over (this one was presumed dead); "
@@ -199,18 +201,22 @@ class Claim:
                 pass  # judged on the next beat
 
     def release(self) -> None:
+        """Remove the claim. A signal's exception while the heartbeat winds down (a second Ctrl-C, say)
+        still removes it: a claim left behind would hold the run until another worker judged it stale."""
         if self.generation is None:
             return
         self._stop.set()
-        if self._thread is not None:
-            self._thread.join()
-        for gen in generations(self.run_dir):
-            if gen <= self.generation:
-                try:
-                    (self.run_dir / f"{PREFIX}{gen}").unlink()
-                except FileNotFoundError:
-                    pass
-        self.generation = None
+        try:
+            if self._thread is not None:
+                self._thread.join()
+        finally:
+            for gen in generations(self.run_dir):
+                if gen <= self.generation:
+                    try:
+                        (self.run_dir / f"{PREFIX}{gen}").unlink()
+                    except FileNotFoundError:
+                        pass
+            self.generation = None
 
     def __enter__(self) -> Claim:
         return self.acquire()

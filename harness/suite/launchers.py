@@ -6,9 +6,13 @@ store, so a cluster's results land where a local run's would, in the same folder
 
 * ``LocalLauncher``: one process per job, ``--jobs`` at a time (one per core on a CPU machine: a Warp
   CPU kernel uses one thread). Each job runs in its own session; the suite passes Ctrl-C/SIGTERM on.
-  A suite that dies without passing anything on (SIGKILL, a crash) still takes its jobs down: each gets
-  SIGINT when the suite dies (``PR_SET_PDEATHSIG``, Linux), so a training job checkpoints at its epoch
-  boundary and stops, and running the suite again resumes it; none is left training unseen.
+  A suite that dies without passing anything on (SIGKILL, a crash) still takes its jobs down: each job
+  holds the read end of a pipe whose write end only the suite has, and the end of that pipe (the
+  kernel closes it when the suite dies, however it dies) makes the job send itself one SIGINT
+  (``harness/__main__.py``), so a training job checkpoints at its epoch boundary and stops, and running
+  the suite again resumes it; none is left training unseen. A pipe rather than the kernel's
+  parent-death signal: that signal comes again each time the dying suite's threads hand the job on to
+  one another, and a second SIGINT means "stop now", without the checkpoint.
 * ``RayLauncher`` (``--launcher ray [--address HOST:PORT]``; ``pip install 'diffsim-bench[ray]'``): each
   job is a Ray task that asks for one CPU, plus ``--gpus-per-run`` of a GPU when the suite's device is
   CUDA, and runs the command in a child process on whichever node Ray picks. The store must be a path
@@ -34,10 +38,11 @@ from harness.results import RunError
 LAUNCHERS = ("local", "ray")
 RAY_RETRIES = 3  # attempts after the first when a worker dies or a child is killed
 _FORWARDED_ENV = ("OMP_", "WARP_", "DIFFSIM_", "CUDA_", "PYTHON")  # the driver's settings that reach every job
+SUITE_LIFELINE = "DIFFSIM_SUITE_LIFELINE"  # the file descriptor a local job watches: its end means the suite died
 
 
 def _job_env() -> dict:
-    env = {k: v for k, v in os.environ.items() if k.startswith(_FORWARDED_ENV)}
+    env = {k: v for k, v in os.environ.items() if k.startswith(_FORWARDED_ENV) and k != SUITE_LIFELINE}
     env.setdefault("OMP_NUM_THREADS", "1")
     env["PYTHONUNBUFFERED"] = "1"
     return env
@@ -70,20 +75,26 @@ class LocalLauncher:
         fh = log.open("a")
         fh.write(f"\n$ {' '.join(argv)}\n")
         fh.flush()
-        env = {**os.environ, **_job_env()}
-        proc = subprocess.Popen(
-            argv,
-            stdout=fh,
-            stderr=subprocess.STDOUT,
-            env=env,
-            start_new_session=True,
-            preexec_fn=functools.partial(_signal_on_parent_death, signal.SIGINT, os.getpid()),
-        )
-        fh.close()
+        lifeline, held = os.pipe()  # both ends close on exec, so no other job inherits this suite's end
+        env = {**os.environ, **_job_env(), SUITE_LIFELINE: str(lifeline)}
+        try:
+            proc = subprocess.Popen(
+                argv, stdout=fh, stderr=subprocess.STDOUT, env=env, start_new_session=True, pass_fds=(lifeline,)
+            )
+        except BaseException:
+            os.close(held)
+            raise
+        finally:
+            os.close(lifeline)
+            fh.close()
+        proc.lifeline = held  # closed when the job has ended; until then the job knows the suite lives
         return proc
 
     def wait(self, handle) -> int:
-        return handle.wait()
+        try:
+            return handle.wait()
+        finally:
+            os.close(handle.lifeline)
 
     def signal(self, handle, signum: int) -> None:
         handle.send_signal(signum)
