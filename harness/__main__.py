@@ -16,6 +16,8 @@ import signal
 import sys
 import threading
 
+from harness import SUITE_LIFELINE
+
 
 class _Stopped(BaseException):
     """A signal arrived: unwinds past every ``except Exception`` to the line below, through the finally
@@ -38,7 +40,7 @@ def _stop_when_the_suite_dies(lifeline: int) -> None:
 
 for _signum in (signal.SIGINT, signal.SIGTERM):
     signal.signal(_signum, _stop_now)
-_lifeline = os.environ.pop("DIFFSIM_SUITE_LIFELINE", "")  # popped: nothing this job starts inherits it
+_lifeline = os.environ.pop(SUITE_LIFELINE, "")  # popped: nothing this job starts inherits it
 if _lifeline.isdigit():
     threading.Thread(target=_stop_when_the_suite_dies, args=(int(_lifeline),), daemon=True).start()
 

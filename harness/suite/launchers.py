@@ -33,12 +33,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+from harness import SUITE_LIFELINE
 from harness.results import RunError
 
 LAUNCHERS = ("local", "ray")
 RAY_RETRIES = 3  # attempts after the first when a worker dies or a child is killed
 _FORWARDED_ENV = ("OMP_", "WARP_", "DIFFSIM_", "CUDA_", "PYTHON")  # the driver's settings that reach every job
-SUITE_LIFELINE = "DIFFSIM_SUITE_LIFELINE"  # the file descriptor a local job watches: its end means the suite died
 
 
 def _job_env() -> dict:
