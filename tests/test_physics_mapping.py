@@ -41,11 +41,11 @@ def _perturbed(phys: PhysicsSpec, name: str) -> PhysicsSpec:
     return dataclasses.replace(phys, **{name: new})
 
 
-def _rollouts(cls, task) -> list[torch.Tensor]:
-    """The neutral states of two scenarios: through ground contact, and from joints past their limits."""
+def _rollouts(sim, task) -> list[torch.Tensor]:
+    """The neutral states of two scenarios: through ground contact, and from joints past their limits,
+    the first from ``sim`` as constructed (``cls(task, num_envs=1, seed=1, max_graph_steps=1)``, unstepped)."""
     gen = torch.Generator().manual_seed(3)
     actions = 0.8 * (2.0 * torch.rand(40, 1, task.action_dim, generator=gen) - 1.0)
-    sim = cls(task, num_envs=1, seed=1, max_graph_steps=1)
     out = []
     with torch.no_grad():
         for a in actions:
@@ -69,15 +69,15 @@ def test_every_physics_field_is_applied_or_refused(backend, task_name):
     sim = cls(base_task, num_envs=1, seed=1, max_graph_steps=1)
     mapping = sim.physics_mapping()
     assert set(FIELDS) <= set(mapping), f"unmapped fields: {sorted(set(FIELDS) - set(mapping))}"
-    reference = _rollouts(cls, base_task)
+    reference = _rollouts(sim, base_task)
     for name in FIELDS:
         task = type(base_task)(_perturbed(base_task.physics, name))
         try:
-            cls(task, num_envs=1, seed=1, max_graph_steps=1)
+            perturbed = cls(task, num_envs=1, seed=1, max_graph_steps=1)
         except BackendError as exc:
             assert name in str(exc), f"refusing a changed {name} must name it: {exc}"
             continue
-        moved = [not torch.equal(a, b) for a, b in zip(reference, _rollouts(cls, task), strict=True)]
+        moved = [not torch.equal(a, b) for a, b in zip(reference, _rollouts(perturbed, task), strict=True)]
         if mapping[name].startswith(INERT):
             assert not any(moved), f"{backend}/{task_name}: {name} is declared inert but changed the simulation"
         else:

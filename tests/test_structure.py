@@ -171,7 +171,8 @@ def test_every_asset_kind_ships_in_the_wheel(tmp_path):
     built from (built from a copy of the tree, not in place)."""
     pytest.importorskip("setuptools")
     tree = tmp_path / "src"
-    shutil.copytree(ROOT, tree, ignore=shutil.ignore_patterns(".git", ".tox", "results", "build", "*.egg-info"))
+    skip = (".git", ".tox", ".venv", "results", "build", "*.egg-info", "__pycache__", ".*_cache")  # not the package's
+    shutil.copytree(ROOT, tree, ignore=shutil.ignore_patterns(*skip))
     kinds = {"probe.urdf": "<robot/>", "meshes/probe.obj": "v 0 0 0\n", "meshes/probe.stl": "solid\n"}
     kinds |= {"tetmesh/probe.msh": "$MeshFormat\n", "tetmesh/probe.npz": "", "probe.xml": "<mujoco/>"}
     for name, text in kinds.items():
