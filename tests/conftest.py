@@ -8,15 +8,6 @@ import pytest
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 
-# The files whose tests run whole suites and training processes end to end. tox hands out one file at
-# a time to each worker (--dist loadfile, in collection order with --no-loadscope-reorder): these go
-# first, so that no long file is handed out last while the other worker has nothing left to do.
-SUITE_FILES = ("test_bench.py", "test_cluster.py", "test_interruptions.py")
-
-
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    items.sort(key=lambda item: item.path.name not in SUITE_FILES)  # stable: the rest keep their order
-
 
 @pytest.fixture(scope="session")
 def shared_dir() -> Path:
