@@ -36,6 +36,7 @@ from algorithms.config import AlgoConfig
 from algorithms.grad_variance import gradient_statistics
 from algorithms.networks import STYLES, Critic, GaussianActor, SquashedGaussianActor
 from algorithms.normalization import RunningMeanStd
+from algorithms.optim import Adam
 from algorithms.returns import (
     actor_loss_from_returns,
     critic_targets,
@@ -66,9 +67,8 @@ class Window:
     sim_seconds: float = 0.0
 
 
-def _optimizer(kind: str, params, lr: float, betas, weight_decay: float) -> torch.optim.Optimizer:
-    cls = torch.optim.AdamW if kind == "adamw" else torch.optim.Adam
-    return cls(params, lr=lr, betas=tuple(betas), weight_decay=weight_decay)
+def _optimizer(kind: str, params, lr: float, betas, weight_decay: float) -> Adam:
+    return Adam(params, lr=lr, betas=betas, weight_decay=weight_decay, decoupled=kind == "adamw")
 
 
 def _finite(norm: Tensor, limit: float) -> bool:
@@ -98,12 +98,8 @@ class FirstOrderActorCritic(nn.Module):
             cfg.optimizer, self.critics.parameters(), cfg.critic_lr, cfg.betas, cfg.weight_decay
         )
         # weight decay set explicitly (torch's AdamW default is 0.01): see AlgoConfig.lambda_weight_decay
-        self.lambda_opt = torch.optim.AdamW(
-            [self.phi], lr=cfg.lambda_lr, betas=cfg.lambda_betas, weight_decay=cfg.lambda_weight_decay
-        )
-        self.alpha_opt = torch.optim.AdamW(
-            [self.log_alpha], lr=cfg.alpha_lr, betas=cfg.betas, weight_decay=cfg.alpha_weight_decay
-        )
+        self.lambda_opt = _optimizer("adamw", [self.phi], cfg.lambda_lr, cfg.lambda_betas, cfg.lambda_weight_decay)
+        self.alpha_opt = _optimizer("adamw", [self.log_alpha], cfg.alpha_lr, cfg.betas, cfg.alpha_weight_decay)
         self.epoch = 0
 
     # -- small pieces --------------------------------------------------------------------
