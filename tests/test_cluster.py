@@ -228,8 +228,10 @@ def test_two_suites_racing_for_one_spec_train_each_run_once(tmp_path):
 
 # -- the Ray launcher against a real Ray head -------------------------------------------------------
 
+# one critic pass per epoch: the launcher's mechanics are under test with Ray, not the critic
+FAST_CRITIC = "\nhyperparameters = { critic_iterations = 1 }"
 RAY_SPEC = (
-    RACE_SPEC.replace('name = "race"', 'name = "cluster"').replace("epochs = 12", "epochs = 24")
+    RACE_SPEC.replace('name = "race"', 'name = "cluster"').replace("epochs = 12", "epochs = 24" + FAST_CRITIC)
     + """
 [[check]]              # fails when it runs (FAIL, exit 1; the spec is valid): the progress must name it
 kind = "gradcheck"
@@ -404,7 +406,7 @@ def test_ctrl_c_stops_a_ray_suite_resumably(tmp_path, ray_head):
     """SIGINT to the driver: the jobs on the Ray workers checkpoint and stop (exit 130), claims are released,
     and the same command finishes every run with each epoch once."""
     spec = tmp_path / "spec.toml"
-    spec.write_text(RACE_SPEC.replace("epochs = 12", "epochs = 40"))
+    spec.write_text(RACE_SPEC.replace("epochs = 12", "epochs = 40" + FAST_CRITIC))
     store = tmp_path / "store"
     command = [sys.executable, "-m", "harness", "bench", "--spec", str(spec), "--store", str(store)]
     command += ["--launcher", "ray", "--address", ray_head["address"]]
