@@ -8,6 +8,22 @@ import pytest
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 
+# The files whose tests start whole suites, clusters and training processes: the longest by far. tox runs
+# the tests with `--dist loadfile --no-loadscope-reorder`, so xdist hands out files in collection order;
+# putting these first keeps one long file from starting last while the other workers sit idle.
+LONGEST_FIRST = ("test_bench.py", "test_cluster.py", "test_interruptions.py", "test_physics_mapping.py")
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Order the collected tests file by file: LONGEST_FIRST, then the rest as collected (a stable sort,
+    so the tests inside a file keep their order)."""
+
+    def rank(item: pytest.Item) -> int:
+        name = item.path.name
+        return LONGEST_FIRST.index(name) if name in LONGEST_FIRST else len(LONGEST_FIRST)
+
+    items.sort(key=rank)
+
 
 @pytest.fixture(scope="session")
 def shared_dir() -> Path:
