@@ -10,7 +10,8 @@ SHARED = Path(__file__).resolve().parents[2] / "shared"
 
 # The longest test files by far: whole suites, Ray clusters, killed training processes, and every physics
 # field on every engine's models. tox runs the tests with `--dist loadfile --no-loadscope-reorder`, so
-# xdist hands out files in collection order; these first keeps one from starting last while others idle.
+# xdist hands out files in collection order; handing these out first keeps any of them from starting last
+# while the other workers sit idle.
 LONGEST_FIRST = ("test_bench.py", "test_cluster.py", "test_interruptions.py", "test_physics_mapping.py")
 
 
