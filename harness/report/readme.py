@@ -67,6 +67,13 @@ def _look_label(claim: dict) -> str:
     return f"the {at}-pair look" + (f"; {claim['pairs']} pairs so far" if waiting > 0 else "")
 
 
+def _paper_algorithms(rows: list[dict]) -> list[dict]:
+    """The rows of the paper's six algorithms, in their order; an ablation's rows (``sapo-tdadpt (m_lambda
+    0.5)``, a setting of Fig. 6) are not one of them and stay in the tables that list every run group."""
+    order = list(ALGORITHM_NAMES)
+    return sorted((r for r in rows if r["algo"] in ALGORITHM_NAMES), key=lambda r: order.index(r["algo"]))
+
+
 def protocol_ant(root: Path) -> str:
     """The Ant protocol's final returns and each TD-lambda variant's claim against its base."""
     setting = {"task": "ant", "backend": "newton", "num_envs": "64", "horizon": "32", "epochs": "2000"}
@@ -79,7 +86,7 @@ def protocol_ant(root: Path) -> str:
     header = ["algorithm (seeds)", "IQM (descriptive)", "vs its base: mean ratio - 1, seed-paired [interval]"]
     header += ["paper's claim: verdict", "design"]
     rows = []
-    for row in sorted(returns, key=lambda r: list(ALGORITHM_NAMES).index(r["algo"])):
+    for row in _paper_algorithms(returns):
         claim = claims.get(row["algo"])
         cells = [f"{ALGORITHM_NAMES[row['algo']]} ({row['seeds']})", f"{float(row['iqm_final']):.0f}", "", "", ""]
         if claim is not None:
@@ -135,7 +142,7 @@ def _locomotion_look(row: dict) -> str:
 def _setting_rows(path: Path, setting: dict) -> list[tuple[str, dict]]:
     """(algorithm, row) of a table's rows at one setting, in the algorithms' order."""
     rows = [r for r in _rows(path) if all(r[k] == v for k, v in setting.items())]
-    return [(r["algo"], r) for r in sorted(rows, key=lambda r: list(ALGORITHM_NAMES).index(r["algo"]))]
+    return [(r["algo"], r) for r in _paper_algorithms(rows)]
 
 
 def _seed_evaluations(runs: Path, prefix: str, algo: str, horizon: str) -> list[dict]:
