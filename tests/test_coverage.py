@@ -20,17 +20,19 @@ def check_coverage(
     procedure: str, n: int, scenarios: list[cov.Scenario], nominal: float, reps: int = REPS
 ) -> dict[str, float]:
     """Each scenario's measured coverage; AssertionError naming those below ``nominal - TOLERANCE``."""
-    measured = {s.name: cov.coverage(s, procedure, n, reps, seed=7) for s in scenarios}
+    measured = {s.name: cov.coverage(s, procedure, n, reps, seed=7, nominal=nominal) for s in scenarios}
     short = {name: share for name, share in measured.items() if share < nominal - TOLERANCE}
     assert not short, f"{procedure} at {n} seeds covers under {nominal} - {TOLERANCE}: {short}"
     return measured
 
 
-@pytest.mark.parametrize("n", LOOKS)
-def test_the_claims_paired_interval_keeps_its_coverage_at_the_reports_seed_counts(n):
-    measured = check_coverage("paired_fieller", n, cov.scenarios(), 0.95)
+@pytest.mark.parametrize(("n", "nominal"), [(3, 0.95), (3, 0.975), *((n, 0.95) for n in LOOKS)])
+def test_the_claims_paired_interval_keeps_its_coverage_at_the_reports_seed_counts(n, nominal):
+    """At the claims' looks (5 and 10 pairs, 95%) and at the Fig. 6 ablation's 3 pairs (95% described, 97.5%
+    judged)."""
+    measured = check_coverage("paired_fieller", n, cov.scenarios(), nominal)
     # and it is not needlessly wide: no scenario over-covers by more than the tolerance
-    assert max(measured.values()) <= 0.95 + TOLERANCE + 0.01, measured
+    assert max(measured.values()) <= nominal + TOLERANCE + 0.01, measured
 
 
 @pytest.mark.parametrize("n", (3, *LOOKS))

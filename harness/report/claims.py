@@ -29,7 +29,15 @@ from harness.report.sequential import (
     judge,
     judge_mean,
 )
-from harness.report.stats import iqm, mean_with_t_ci, probability_of_improvement, sample_std, sign_flip_p_value
+from harness.report.stats import (
+    CONFIDENCE,
+    iqm,
+    mean_with_t_ci,
+    paired_ratio_ci,
+    probability_of_improvement,
+    sample_std,
+    sign_flip_p_value,
+)
 
 
 @dataclass(frozen=True)
@@ -209,6 +217,81 @@ def lambda_course_table(runs: list[RunRecord]) -> pd.DataFrame:
     columns = ["task", "backend", "num_envs", "epochs", "horizon", "env_steps", "algo", "seeds", "lambda_first"]
     columns += ["lambda_final_mean", "lambda_final_std", "change", "change_ci_low", "change_ci_high"]
     return pd.DataFrame(rows, columns=columns + ["falling_share", "verdict", "source"])
+
+
+#: Fig. 6's settings of SAPO-TDAdpt's lambda update that the paper says lower the return, (b_lambda, m_lambda) =
+#: (4, 2) and (4, 3), as :func:`~harness.report.records.algo_label` names them; the other settings are shown only
+ABLATION_JUDGED = ("sapo-tdadpt (b_lambda 4, m_lambda 2)", "sapo-tdadpt (b_lambda 4, m_lambda 3)")
+ABLATION_CONFIDENCE = 1.0 - (1.0 - CONFIDENCE) / len(ABLATION_JUDGED)  # Bonferroni over the judged settings
+COLLAPSE_SHARE = 0.5  # the paper's "plummets", per seed: a final return under half of its pair's
+
+
+def ablation_verdict(pairs: int, low: float, high: float, judged: bool, paper_protocol: bool = True) -> str:
+    """Fig. 6's verdict on one setting against its algorithm's own (docs/statistics.md): the direction only,
+    the paper giving no size; a setting the paper does not say degrades is described, never judged."""
+    if not judged:
+        return "descriptive"
+    if pairs < 2:
+        return f"{UNDECIDED} (under 2 pairs)"
+    if high < 0.0:
+        return f"{CONFIRMED} (lowers the return)"
+    if low > 0.0:
+        return f"{CONTRADICTED if paper_protocol else NOT_CONFIRMED} (raises the return)"
+    return UNDECIDED
+
+
+def _final_lambda(members: list[RunRecord]) -> float:
+    """The mean over runs of lambda after the last epoch (NaN where no run logged it)."""
+    finals = [metric_column(r.metrics, "lam").to_numpy(dtype=float) for r in members]
+    finals = [c[np.isfinite(c)][-1] for c in finals if np.isfinite(c).any()]
+    return float(np.mean(finals)) if finals else math.nan
+
+
+def ablation_table(runs: list[RunRecord]) -> pd.DataFrame:
+    """The paper's Fig. 6: every ablation setting (a run group whose label names changed hyperparameters, e.g.
+    ``sapo-tdadpt (b_lambda 4, m_lambda 2)``) against its algorithm's own runs at the same setting, on the seeds
+    both have evaluated (seed s gives both the same initial policy and environments): the relative change of
+    the mean final return with its paired Fieller interval, at 97.5% for the settings the paper says degrade
+    (:data:`ABLATION_JUDGED`, judged) and 95% for the rest (descriptive); each side's seeds, mean and final
+    lambda; and the pairs whose setting's return fell under half of its pair's."""
+    groups = by_group(r for r in runs if r.evaluation is not None)
+    rows = []
+    for key, members in groups.items():
+        task, backend, num_envs, planned, horizon, label = key
+        reference = label.split(" (", 1)[0]
+        own = groups.get((*key[:-1], reference))
+        if reference == label or own is None:
+            continue
+        judged = label in ABLATION_JUDGED
+        confidence = ABLATION_CONFIDENCE if judged else CONFIDENCE
+        seeds, setting, baseline = _paired(members, own, Claim(task, label, reference, 0.0, "Fig. 6"))
+        change, low, high = paired_ratio_ci(setting, baseline, confidence)
+        paper_protocol = at_paper_protocol(num_envs, planned, horizon)
+        rows.append(
+            _setting(task, backend, num_envs, planned, horizon)
+            | {
+                "env_steps": value_or_range(r.env_steps for r in members),
+                "algo": label,
+                "reference": reference,
+                "seeds": len(members),
+                "mean_final": float(np.mean([r.final_return for r in members])),
+                "iqm_final": iqm([r.final_return for r in members]),
+                "lambda_final": _final_lambda(members),
+                "reference_lambda_final": _final_lambda(own),
+                "pairs": len(seeds),
+                "measured_change": change,
+                "confidence": confidence,
+                "change_ci_low": low,
+                "change_ci_high": high,
+                "verdict": ablation_verdict(len(seeds), low, high, judged, paper_protocol),
+                "collapsed_pairs": int(np.sum(setting < COLLAPSE_SHARE * baseline)),
+                "source": "Fig. 6",
+            }
+        )
+    columns = ["task", "backend", "num_envs", "epochs", "horizon", "env_steps", "algo", "reference", "seeds"]
+    columns += ["mean_final", "iqm_final", "lambda_final", "reference_lambda_final", "pairs", "measured_change"]
+    columns += ["confidence", "change_ci_low", "change_ci_high", "verdict", "collapsed_pairs", "source"]
+    return pd.DataFrame(rows, columns=columns)
 
 
 def locomotion_verdict(low: float, high: float, speed: float = LOCOMOTION_SPEED) -> str:
