@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -13,6 +14,17 @@ SHARED = Path(__file__).resolve().parents[2] / "shared"
 # xdist hands out files in collection order; handing these out first keeps any of them from starting last
 # while the other workers sit idle.
 LONGEST_FIRST = ("test_bench.py", "test_cluster.py", "test_interruptions.py", "test_physics_mapping.py")
+
+
+def pytest_xdist_auto_num_workers(config: pytest.Config) -> int | None:
+    """``-n auto``: one worker more than the machine has cores (tox caps it with ``--maxprocesses``).
+
+    Many tests wait on processes they started (a suite's jobs, a Ray head's daemons, a run to be killed at
+    a random moment); a worker that waits leaves its core idle unless another worker is ready to use it.
+    ``PYTEST_XDIST_AUTO_NUM_WORKERS`` still decides where it is set."""
+    if os.environ.get("PYTEST_XDIST_AUTO_NUM_WORKERS"):
+        return None
+    return len(os.sched_getaffinity(0)) + 1 if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1) + 1
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
