@@ -183,6 +183,12 @@ def lambda_course_verdict(low: float, high: float, paper_protocol: bool = True) 
     return UNDECIDED
 
 
+def _lambda_course(run: RunRecord) -> np.ndarray:
+    """The run's lambda after each epoch it logged, in order (empty for runs from before lambda was logged)."""
+    course = metric_column(run.metrics, "lam").to_numpy(dtype=float)
+    return course[np.isfinite(course)]
+
+
 def lambda_course_table(runs: list[RunRecord]) -> pd.DataFrame:
     """The paper's Fig. 4b for every setting with finished (evaluated) runs of an adaptive-lambda algorithm:
     lambda after the first and the last epoch, the change between them per seed (mean, 95% t CI over seeds),
@@ -190,8 +196,7 @@ def lambda_course_table(runs: list[RunRecord]) -> pd.DataFrame:
     groups = by_group(r for r in runs if r.evaluation is not None and r.algo.split(" (")[0].endswith("-tdadpt"))
     rows = []
     for (task, backend, num_envs, planned, horizon, algo), members in groups.items():
-        courses = [metric_column(r.metrics, "lam").to_numpy(dtype=float) for r in members]
-        courses = [c[np.isfinite(c)] for c in courses]
+        courses = [_lambda_course(r) for r in members]
         if not all(c.size > 1 for c in courses):
             continue  # runs from before lambda was logged
         first = np.array([c[0] for c in courses])
@@ -220,7 +225,8 @@ def lambda_course_table(runs: list[RunRecord]) -> pd.DataFrame:
 
 
 #: Fig. 6's settings of SAPO-TDAdpt's lambda update that the paper says lower the return, (b_lambda, m_lambda) =
-#: (4, 2) and (4, 3), as :func:`~harness.report.records.algo_label` names them; the other settings are shown only
+#: (4, 2) and (4, 3), as :func:`~harness.report.records.algo_label` names them; the other settings are
+#: described, not judged
 ABLATION_JUDGED = ("sapo-tdadpt (b_lambda 4, m_lambda 2)", "sapo-tdadpt (b_lambda 4, m_lambda 3)")
 ABLATION_CONFIDENCE = 1.0 - (1.0 - CONFIDENCE) / len(ABLATION_JUDGED)  # Bonferroni over the judged settings
 COLLAPSE_SHARE = 0.5  # the paper's "plummets", per seed: a final return under half of its pair's
@@ -242,8 +248,7 @@ def ablation_verdict(pairs: int, low: float, high: float, judged: bool, paper_pr
 
 def _final_lambda(members: list[RunRecord]) -> float:
     """The mean over runs of lambda after the last epoch (NaN where no run logged it)."""
-    finals = [metric_column(r.metrics, "lam").to_numpy(dtype=float) for r in members]
-    finals = [c[np.isfinite(c)][-1] for c in finals if np.isfinite(c).any()]
+    finals = [course[-1] for course in map(_lambda_course, members) if course.size]
     return float(np.mean(finals)) if finals else math.nan
 
 
