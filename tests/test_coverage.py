@@ -16,6 +16,11 @@ REPS = 1200
 TOLERANCE = 0.02
 
 
+def monte_carlo_tolerance(nominal: float, reps: int = REPS) -> float:
+    """Three Monte-Carlo standard errors of a coverage share whose truth is ``nominal``."""
+    return 3.0 * float(np.sqrt(nominal * (1.0 - nominal) / reps))
+
+
 def check_coverage(
     procedure: str, n: int, scenarios: list[cov.Scenario], nominal: float, reps: int = REPS
 ) -> dict[str, float]:
@@ -31,8 +36,13 @@ def test_the_claims_paired_interval_keeps_its_coverage_at_the_reports_seed_count
     """At the claims' looks (5 and 10 pairs, 95%) and at the Fig. 6 ablation's 3 pairs (95% described, 97.5%
     judged)."""
     measured = check_coverage("paired_fieller", n, cov.scenarios(), nominal)
-    # and it is not needlessly wide: no scenario over-covers by more than the tolerance
+    # and it is not needlessly wide: no scenario over-covers by more than the tolerance (at 97.5% skewed or failing
+    # seeds make it conservative, as docs/statistics.md says, and this bound no longer binds) ...
     assert max(measured.values()) <= nominal + TOLERANCE + 0.01, measured
+    # ... and where its model holds (normal pairs) it covers at its level, within three Monte-Carlo standard errors
+    exact = {name: share for name, share in measured.items() if name.startswith("normal")}
+    assert exact, measured
+    assert all(abs(share - nominal) <= monte_carlo_tolerance(nominal) for share in exact.values()), exact
 
 
 @pytest.mark.parametrize("n", (3, *LOOKS))
